@@ -1,0 +1,30 @@
+# runout: set-up, demo, tests, benchmarks.
+# torch is pinned so that a CPU machine takes the CPU wheel instead of several GB of CUDA packages;
+# override with `make setup TORCH=torch==2.13.0+cu126 ...` on a GPU machine.
+PYTHON ?= python3
+TORCH  ?= torch==2.13.0
+VENV   := .venv
+BIN    := $(VENV)/bin
+
+.PHONY: setup demo test bench clean
+
+setup: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q "$(TORCH)"
+	$(BIN)/pip install -q -e ".[test]"
+	touch $@
+
+demo: setup
+	$(BIN)/runout demo --out out/demo
+
+test: setup
+	$(BIN)/python -m pytest -q
+
+bench: setup
+	$(BIN)/python bench/mpm.py
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

@@ -1,0 +1,3 @@
+from runout.cli import main
+
+main()

@@ -1,0 +1,32 @@
+"""Command line entry point: `runout ...` and `python -m runout ...`.
+
+Bad input (runout.errors.InputError) is printed as one sentence and exits with code 2.
+"""
+
+import sys
+
+import typer
+
+from runout.cli.app import app
+from runout.cli import mpm_commands  # noqa: F401  (registers mpm, show, demo)
+from runout.errors import InputError
+
+
+def main() -> None:
+    try:
+        app(standalone_mode=False)
+    except InputError as exc:
+        typer.secho(f"error: {exc}", err=True, fg=typer.colors.RED)
+        sys.exit(2)
+    except typer.Abort:
+        typer.echo("aborted", err=True)
+        sys.exit(1)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except Exception as exc:  # click usage errors carry their own exit code (2)
+        import click
+
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            sys.exit(exc.exit_code)
+        raise

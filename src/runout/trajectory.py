@@ -1,0 +1,182 @@
+"""Trajectory: the one result type made by the MPM and the GNS alike.
+
+A trajectory holds positions [T, N, 2] (m) at frames frame_dt (s) apart, the particle
+type of each point (3 = kinematic/stationary, 6 = soil), each point's material index into
+a material table, and the domain bounds. On disk a trajectory is the public GNS layout
+(geoelements/gns): ``trajectory.npz`` with one simulation ``simulation_0 =
+(positions, particle_type, material_features)`` and a ``metadata.json`` beside it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from runout.errors import InputError
+from runout.scene import PARTICLE_TYPE_KINEMATIC, Material, Scene
+
+# Default GNS connectivity radius as a multiple of the point spacing: 2.3 x 2 m = 4.6 m gives
+# ~16 neighbours per point at 4 points per 4 m cell.
+RADIUS_PER_SPACING = 2.3
+
+
+@dataclass
+class Trajectory:
+    positions: np.ndarray  # [T, N, 2] float32, m
+    particle_type: np.ndarray  # [N] int64
+    material_id: np.ndarray  # [N] int64, index into materials
+    materials: list[Material]
+    frame_dt: float  # s
+    bounds: np.ndarray  # [[x_lo, x_hi], [y_lo, y_hi]] m
+    name: str = "trajectory"
+    info: dict = field(default_factory=dict)  # engine, wall time, ... (free-form)
+
+    @property
+    def n_frames(self) -> int:
+        return self.positions.shape[0]
+
+    @property
+    def n_points(self) -> int:
+        return self.positions.shape[1]
+
+    @property
+    def soil(self) -> np.ndarray:
+        """Mask of the points that move (not kinematic)."""
+        return self.particle_type != PARTICLE_TYPE_KINEMATIC
+
+    def material_features(self, width: int = 2) -> np.ndarray:
+        """[N, width] float32 GNS features: [tan phi] (width 1) or [tan phi, c / 100 kPa]."""
+        table = np.array([m.features()[:width] for m in self.materials], dtype=np.float32)
+        return table[self.material_id]
+
+    def frames(self, stop: int) -> "Trajectory":
+        """The first `stop` frames."""
+        return Trajectory(
+            self.positions[:stop], self.particle_type, self.material_id, self.materials,
+            self.frame_dt, self.bounds, self.name, dict(self.info),
+        )
+
+
+def trajectory_from_features(
+    positions: np.ndarray,
+    particle_type: np.ndarray,
+    features: np.ndarray | None,
+    frame_dt: float,
+    bounds,
+    name: str = "trajectory",
+) -> Trajectory:
+    """Rebuild a Trajectory from the GNS tuple: materials are the distinct feature rows
+    (tan phi -> phi in degrees, second column x 100 -> c in kPa)."""
+    n = positions.shape[1]
+    if features is None:
+        features = np.zeros((n, 1), dtype=np.float32)
+    features = np.asarray(features, dtype=np.float32).reshape(n, -1)
+    rows, material_id = np.unique(features, axis=0, return_inverse=True)
+    materials = []
+    for k, row in enumerate(rows):
+        phi = math.degrees(math.atan(float(row[0])))
+        c = float(row[1]) * 100.0 if len(row) > 1 else 0.0
+        materials.append(Material(name=f"material_{k}", friction_angle=phi, cohesion=c))
+    return Trajectory(
+        positions=np.asarray(positions, dtype=np.float32),
+        particle_type=np.broadcast_to(np.asarray(particle_type, dtype=np.int64), (n,)).copy(),
+        material_id=material_id.reshape(-1).astype(np.int64),
+        materials=materials,
+        frame_dt=float(frame_dt),
+        bounds=np.asarray(bounds, dtype=float),
+        name=name,
+    )
+
+
+def gns_tuple(traj: Trajectory, feature_width: int = 2) -> np.ndarray:
+    """The (positions, particle_type, material) tuple as the 1-D object array the GNS reads."""
+    out = np.empty(3, dtype=object)
+    out[0] = traj.positions.astype(np.float32)
+    out[1] = traj.particle_type.astype(np.int64)
+    out[2] = traj.material_features(feature_width)
+    return out
+
+
+def save_trajectory(traj: Trajectory, out_dir: str | Path, feature_width: int = 2) -> Path:
+    """Write DIR/trajectory.npz (one simulation, GNS dict layout) and DIR/metadata.json."""
+    from runout.dataset import statistics  # dataset builds on trajectory, not the reverse
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / "trajectory.npz"
+    tmp = out_dir / "trajectory.tmp.npz"
+    np.savez_compressed(tmp, simulation_0=gns_tuple(traj, feature_width))
+    tmp.replace(path)
+    meta = statistics([traj])
+    meta.update(
+        {
+            "name": traj.name,
+            "materials": [_material_dict(m) for m in traj.materials],
+            "material_features": ["tan_phi", "c_over_100kPa"][:feature_width],
+            "info": traj.info,
+        }
+    )
+    (out_dir / "metadata.json").write_text(json.dumps(meta, indent=2))
+    return path
+
+
+def _material_dict(m: Material) -> dict:
+    return {
+        "name": m.name, "model": m.model, "friction_angle": m.friction_angle, "cohesion": m.cohesion,
+        "youngs_modulus": m.youngs_modulus, "poisson_ratio": m.poisson_ratio, "density": m.density,
+    }
+
+
+def load_trajectory(path: str | Path) -> Trajectory:
+    """Read a trajectory written by save_trajectory (a directory or its trajectory.npz)."""
+    path = Path(path)
+    npz = path / "trajectory.npz" if path.is_dir() else path
+    meta_path = npz.parent / "metadata.json"
+    if not npz.is_file():
+        raise InputError(f"{npz}: no such trajectory file.")
+    if not meta_path.is_file():
+        raise InputError(f"{meta_path}: missing; a trajectory needs its metadata.json beside it.")
+    meta = json.loads(meta_path.read_text())
+    from runout.dataset import read_simulations
+
+    sims = read_simulations(npz)
+    if len(sims) != 1:
+        raise InputError(f"{npz}: holds {len(sims)} simulations; a trajectory file holds exactly one.")
+    positions, ptype, feats = sims[0]
+    traj = trajectory_from_features(
+        positions, ptype, feats, meta.get("dt", 0.0375), meta["bounds"], meta.get("name", npz.stem)
+    )
+    if "materials" in meta:
+        traj = _attach_material_table(traj, feats, meta["materials"])
+    traj.info = meta.get("info", {})
+    return traj
+
+
+def _attach_material_table(traj: Trajectory, feats, table: list[dict]) -> Trajectory:
+    """Map each point to the named material whose features match its feature row."""
+    mats = [Material(**{k: v for k, v in m.items()}) for m in table]
+    width = np.asarray(feats).reshape(traj.n_points, -1).shape[1]
+    rows = np.array([m.features()[:width] for m in mats], dtype=np.float32)
+    f = np.asarray(feats, dtype=np.float32).reshape(traj.n_points, -1)
+    match = np.all(np.isclose(f[:, None, :], rows[None, :, :], atol=1e-6), axis=2)
+    if not match.any(axis=1).all():
+        return traj
+    traj.material_id = match.argmax(axis=1).astype(np.int64)
+    traj.materials = mats
+    return traj
+
+
+def trajectory_for_scene(scene: Scene, positions: np.ndarray, particle_type, material_id) -> Trajectory:
+    return Trajectory(
+        positions=np.asarray(positions, dtype=np.float32),
+        particle_type=np.asarray(particle_type, dtype=np.int64),
+        material_id=np.asarray(material_id, dtype=np.int64),
+        materials=[scene.materials[n] for n in scene.material_names],
+        frame_dt=scene.time.frame_dt,
+        bounds=np.array([[0.0, scene.domain.width], [0.0, scene.domain.height]]),
+        name=scene.name,
+    )
