@@ -1,0 +1,123 @@
+"""Autoregressive GNS rollouts: differentiable tensors in, tensors out; Trajectory in, out.
+
+Kinematic points (type 3) keep their given positions; soil points are clamped into the
+domain after every step (the rigid walls); a non-finite position stops the run with
+RolloutDiverged. With `checkpoint=True` each step is recomputed in the backward pass
+(torch.utils.checkpoint), so memory grows only by one [N, 2] frame per step.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from torch.utils.checkpoint import checkpoint as recompute_in_backward
+from tqdm.auto import tqdm
+
+from runout.gns.simulator import Simulator, movable_mask
+from runout.scene import Scene, fill_points
+from runout.trajectory import Trajectory, trajectory_for_scene
+
+CHECK_EVERY = 10  # steps between host checks for NaN and for a stopped flow
+MIN_FRAMES_BEFORE_STOP = 40  # frames: a slope at rest needs time to start failing
+
+
+class RolloutDiverged(RuntimeError):
+    """The rollout produced non-finite positions."""
+
+
+def rollout(
+    simulator: Simulator,
+    initial_positions: torch.Tensor,
+    particle_type: torch.Tensor,
+    material: torch.Tensor,
+    n_steps: int,
+    bounds,
+    checkpoint: bool = False,
+    progress: bool = False,
+    stop_speed: float | None = None,
+) -> torch.Tensor:
+    """Positions [history + steps, N, 2] (m) from initial_positions [history, N, 2] (m).
+
+    particle_type [N] (3 = kinematic), material [N, k] (may require grad), bounds
+    [[x_lo, x_hi], [y_lo, y_hi]] (m). Differentiable w.r.t. material and the model.
+    stop_speed (m per frame): stop early once every soil point moved less than this per
+    frame over the last CHECK_EVERY frames (never before MIN_FRAMES_BEFORE_STOP frames).
+    """
+    device = simulator.vel_mean.device
+    window = initial_positions.to(device).transpose(0, 1)  # [N, history, 2]
+    particle_type = particle_type.to(device)
+    material = material.to(device)
+    bounds = torch.as_tensor(bounds, dtype=window.dtype, device=device)
+    frames = list(window.unbind(1))
+    for step in tqdm(range(n_steps), disable=not progress, desc="GNS rollout", unit="step"):
+        if checkpoint and torch.is_grad_enabled():
+            nxt = recompute_in_backward(_step, simulator, window, particle_type, material, bounds, use_reentrant=False)
+        else:
+            nxt = _step(simulator, window, particle_type, material, bounds)
+        frames.append(nxt)
+        window = torch.cat([window[:, 1:], nxt[:, None]], dim=1)
+        if (step + 1) % CHECK_EVERY == 0 or step + 1 == n_steps:
+            if _check(frames, particle_type, step, stop_speed):
+                break
+    return torch.stack(frames)
+
+
+def _step(simulator, window, particle_type, material, bounds) -> torch.Tensor:
+    predicted = simulator.next_positions(window, particle_type, material, bounds)
+    predicted = torch.where(movable_mask(particle_type)[:, None], predicted, window[:, -1])
+    return torch.clamp(predicted, bounds[:, 0], bounds[:, 1])
+
+
+def _check(frames, particle_type, step, stop_speed) -> bool:
+    """Raise on NaN; True when the flow has stopped (one host sync per CHECK_EVERY steps)."""
+    recent = torch.stack(frames[-CHECK_EVERY - 1:]).detach()
+    soil = movable_mask(particle_type)
+    speed = (recent[1:, soil] - recent[:-1, soil]).norm(dim=-1).amax() if soil.any() else recent.new_zeros(())
+    finite, fastest = bool(torch.isfinite(recent[-1]).all()), float(speed)
+    if not finite:
+        raise RolloutDiverged(
+            f"GNS rollout produced non-finite positions by step {step + 1}; the model is outside "
+            "what it was trained on (check the material features, domain and radius)."
+        )
+    return stop_speed is not None and len(frames) >= MIN_FRAMES_BEFORE_STOP and fastest < stop_speed
+
+
+def material_tensor(simulator: Simulator, traj: Trajectory) -> torch.Tensor:
+    """[N, k] material features of a trajectory, in the width the simulator expects."""
+    return torch.from_numpy(traj.material_features(simulator.schema.material_width))
+
+
+def rollout_trajectory(
+    simulator: Simulator,
+    initial: Trajectory,
+    n_frames: int,
+    stop_speed: float | None = 0.05,
+    progress: bool = False,
+) -> Trajectory:
+    """GNS trajectory of n_frames frames (including the first `history`) starting from the
+    first frames of `initial`; stop_speed in m/s (None: run all frames)."""
+    history = simulator.schema.history
+    per_frame = None if stop_speed is None else stop_speed * initial.frame_dt  # m/s -> m/frame
+    with torch.no_grad():
+        positions = rollout(
+            simulator,
+            torch.from_numpy(np.ascontiguousarray(initial.positions[:history])),
+            torch.from_numpy(initial.particle_type),
+            material_tensor(simulator, initial),
+            max(n_frames - history, 0),
+            initial.bounds,
+            progress=progress,
+            stop_speed=per_frame,
+        )
+    return Trajectory(
+        positions.cpu().numpy().astype(np.float32), initial.particle_type, initial.material_id,
+        initial.materials, initial.frame_dt, initial.bounds, initial.name,
+        {"engine": "gns", "frames_requested": n_frames},
+    )
+
+
+def scene_at_rest(scene: Scene, history: int = 6) -> Trajectory:
+    """`history` identical frames of the scene's filled points: a start from rest."""
+    points = fill_points(scene)
+    positions = np.repeat(points.position[None].astype(np.float32), history, axis=0)
+    return trajectory_for_scene(scene, positions, points.particle_type, points.material_id)

@@ -1,0 +1,82 @@
+"""The GNS node-feature layout as explicit data, stored in every checkpoint.
+
+Node features, in this column order (material features last, so a model can be widened
+with one more material input by appending zero columns to the encoder's first layer):
+
+    velocities   (history - 1) x dim   normalised per-frame velocities, oldest first
+    walls        2 x dim               clip((x - lo) / R), clip((hi - x) / R) per dimension
+    type         type_embedding        learned embedding of the particle type
+    material     len(material_features) e.g. [tan phi, c / 100 kPa]
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass, fields
+
+MATERIAL_FEATURE_NAMES = ("tan_phi", "c_over_100kPa")  # runout.scene.Material.features() order
+
+
+@dataclass(frozen=True)
+class FeatureSchema:
+    history: int = 6  # positions per input window -> history - 1 velocities
+    dim: int = 2
+    wall_clip: float = 1.0  # wall distances / R are clipped to [-wall_clip, wall_clip]
+    particle_types: int = 9
+    type_embedding: int = 16
+    material_features: tuple[str, ...] = MATERIAL_FEATURE_NAMES
+
+    @property
+    def material_width(self) -> int:
+        return len(self.material_features)
+
+    @property
+    def node_width(self) -> int:
+        """Columns entering the node encoder."""
+        return (self.history - 1) * self.dim + 2 * self.dim + self.type_embedding + self.material_width
+
+    @property
+    def edge_width(self) -> int:
+        """Relative displacement / R (dim columns) and its length."""
+        return self.dim + 1
+
+    def node_feature_names(self) -> list[str]:
+        axes = "xyz"[: self.dim]
+        vel = [f"velocity[t-{self.history - 2 - k}].{a}" for k in range(self.history - 1) for a in axes]
+        walls = [f"wall_{side}.{a}" for side in ("lo", "hi") for a in axes]
+        types = [f"type_embedding[{k}]" for k in range(self.type_embedding)]
+        return vel + walls + types + list(self.material_features)
+
+    def with_material_features(self, names: tuple[str, ...]) -> "FeatureSchema":
+        return FeatureSchema(**{**asdict(self), "material_features": tuple(names)})
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["material_features"] = list(self.material_features)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FeatureSchema":
+        known = {f.name for f in fields(cls)}
+        kwargs = {k: v for k, v in d.items() if k in known}
+        if "material_features" in kwargs:
+            kwargs["material_features"] = tuple(kwargs["material_features"])
+        return cls(**kwargs)
+
+    def difference(self, other: "FeatureSchema") -> str | None:
+        """The first field in which `other` differs, as a phrase, or None when equal."""
+        for f in fields(self):
+            mine, theirs = getattr(self, f.name), getattr(other, f.name)
+            if mine != theirs:
+                return f"{f.name} is {_show(mine)} in the model but {_show(theirs)} in the data"
+        return None
+
+
+def _show(value) -> str:
+    if isinstance(value, tuple):
+        return "[" + ", ".join(value) + "]"
+    return repr(value)
+
+
+def material_names_for_width(width: int) -> tuple[str, ...]:
+    """Names of the first `width` material features ([tan phi], [tan phi, c / 100 kPa])."""
+    return MATERIAL_FEATURE_NAMES[:width]

@@ -1,0 +1,125 @@
+"""The learned simulator: features, normalisation, noise, and the position update.
+
+Frame units throughout: positions in m, velocities v = x_t - x_{t-1} in m per frame,
+accelerations a = v_t - v_{t-1} in m per frame^2 (dt = 1 frame). The network
+(runout.gns.network) sees only normalised, dimensionless features.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+
+from runout.gns.graph import radius_graph
+from runout.gns.network import EncodeProcessDecode
+from runout.gns.schema import FeatureSchema
+from runout.scene import PARTICLE_TYPE_KINEMATIC
+
+
+@dataclass(frozen=True)
+class Normalisation:
+    """Dataset statistics in frame units, and the training noise they are widened by."""
+
+    vel_mean: tuple[float, float]  # m / frame
+    vel_std: tuple[float, float]
+    acc_mean: tuple[float, float]  # m / frame^2
+    acc_std: tuple[float, float]
+    noise_std: float  # m / frame: velocity noise (paper 0.067 m/s x 0.0375 s = 2.5e-3 m/frame)
+
+    @classmethod
+    def from_metadata(cls, meta: dict, noise_std: float) -> "Normalisation":
+        pick = lambda k: tuple(float(x) for x in meta[k])  # noqa: E731
+        return cls(pick("vel_mean"), pick("vel_std"), pick("acc_mean"), pick("acc_std"), float(noise_std))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Normalisation":
+        return cls(tuple(d["vel_mean"]), tuple(d["vel_std"]), tuple(d["acc_mean"]), tuple(d["acc_std"]), d["noise_std"])
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    latent: int = 128
+    hidden: int = 128
+    hidden_layers: int = 2
+    message_passing_steps: int = 10
+
+
+class Simulator(nn.Module):
+    """GNS: maps a window of `schema.history` positions per point to the next positions."""
+
+    def __init__(self, schema: FeatureSchema, stats: Normalisation, radius: float, config: NetworkConfig = NetworkConfig()):
+        super().__init__()
+        self.schema = schema
+        self.stats = stats
+        self.radius = float(radius)  # m, connectivity radius R
+        self.config = config
+        self.type_embedding = nn.Embedding(schema.particle_types, schema.type_embedding)
+        self.network = EncodeProcessDecode(
+            schema.node_width, schema.edge_width, schema.dim,
+            config.latent, config.hidden, config.hidden_layers, config.message_passing_steps,
+        )
+        noise2 = stats.noise_std**2  # input statistics widened by the noise, as in the public GNS
+        self.register_buffer("vel_mean", torch.tensor(stats.vel_mean))
+        self.register_buffer("vel_scale", torch.tensor(stats.vel_std).square().add(noise2).sqrt())
+        self.register_buffer("acc_mean", torch.tensor(stats.acc_mean))
+        self.register_buffer("acc_scale", torch.tensor(stats.acc_std).square().add(noise2).sqrt())
+
+    def forward(self, window, particle_type, material, bounds, graph=None) -> torch.Tensor:
+        """Normalised acceleration [N, 2] from window [N, history, 2] (m), particle_type [N],
+        material [N, k], bounds [2, 2] or [N, 2, 2] ([[x_lo, x_hi], [y_lo, y_hi]], m) and the
+        graph index of each point [N] (None: one graph)."""
+        senders, receivers = radius_graph(window[:, -1], self.radius, graph)
+        nodes = self.node_features(window, particle_type, material, bounds)
+        edges = self.edge_features(window[:, -1], senders, receivers)
+        return self.network(nodes, edges, senders, receivers)
+
+    def node_features(self, window, particle_type, material, bounds) -> torch.Tensor:
+        velocity = (window[:, 1:] - window[:, :-1] - self.vel_mean) / self.vel_scale  # [N, history-1, 2]
+        x = window[:, -1]
+        clip = self.schema.wall_clip
+        lo, hi = bounds[..., 0], bounds[..., 1]
+        walls = torch.cat([(x - lo) / self.radius, (hi - x) / self.radius], dim=1).clamp(-clip, clip)
+        parts = [velocity.flatten(1), walls, self.type_embedding(particle_type), material.to(x.dtype)]
+        return torch.cat(parts, dim=1)
+
+    def edge_features(self, x, senders, receivers) -> torch.Tensor:
+        displacement = (x[senders] - x[receivers]) / self.radius
+        return torch.cat([displacement, displacement.norm(dim=1, keepdim=True)], dim=1)
+
+    def normalise_acceleration(self, acceleration: torch.Tensor) -> torch.Tensor:
+        return (acceleration - self.acc_mean) / self.acc_scale
+
+    def next_positions(self, window, particle_type, material, bounds, graph=None) -> torch.Tensor:
+        """Semi-implicit Euler in frame units: v' = (x_t - x_{t-1}) + a, x' = x_t + v'."""
+        acceleration = self(window, particle_type, material, bounds, graph).float() * self.acc_scale + self.acc_mean
+        velocity = window[:, -1] - window[:, -2] + acceleration
+        return window[:, -1] + velocity
+
+
+def random_walk_noise(window: torch.Tensor, noise_std: float, movable: torch.Tensor, generator: torch.Generator):
+    """Position noise [N, history, 2] (m) whose velocities are a random walk: each of the
+    history - 1 velocity increments ~ N(0, noise_std^2 / (history - 1)), so the last input
+    velocity carries noise of std noise_std; the first position is untouched and kinematic
+    points get none."""
+    n, history, dim = window.shape
+    step = torch.randn((n, history - 1, dim), generator=generator, device=window.device, dtype=window.dtype)
+    velocity_noise = torch.cumsum(step * (noise_std / (history - 1) ** 0.5), dim=1)
+    position_noise = torch.cat([torch.zeros_like(window[:, :1]), torch.cumsum(velocity_noise, dim=1)], dim=1)
+    return position_noise * movable[:, None, None]
+
+
+def corrected_target(noisy_window: torch.Tensor, next_position: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
+    """Target acceleration (m / frame^2) for noisy inputs. The next position is moved by the
+    same noise as the current one (public recipe), so the update with this acceleration
+    gives x_t + noise_t + (x_{t+1} - x_t): the true next velocity from the noisy position."""
+    target = next_position + noise[:, -1]
+    return (target - noisy_window[:, -1]) - (noisy_window[:, -1] - noisy_window[:, -2])
+
+
+def movable_mask(particle_type: torch.Tensor) -> torch.Tensor:
+    return particle_type != PARTICLE_TYPE_KINEMATIC
