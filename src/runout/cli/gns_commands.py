@@ -1,0 +1,150 @@
+"""`runout train` and `runout rollout`: the Graph Network Simulator from the command line."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import typer
+
+from runout.cli.app import app
+from runout.errors import InputError
+
+
+@app.command()
+def train(
+    data: Path = typer.Option(..., "--data", help="Dataset folder with train.npz, metadata.json (and valid.npz for validation rollouts)."),
+    out: Path = typer.Option(..., "--out", help="Run folder: checkpoint.pt, best.pt, log.jsonl (and tensorboard/ if installed)."),
+    steps: int = typer.Option(2_000_000, "--steps", help="Train until the step counter reaches this value."),
+    resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.pt exactly where it stopped."),
+    init: Path = typer.Option(None, "--init", help="Fine-tune from this checkpoint; extra material inputs (e.g. cohesion) start with zero weights."),
+    device: str = typer.Option("auto", "--device", help="auto, cpu, cuda or cuda:K (under torchrun each process takes its LOCAL_RANK GPU)."),
+    batch_size: int = typer.Option(2, "--batch-size", help="Graphs per process and step."),
+    lr: float = typer.Option(1e-4, "--lr", help="Initial learning rate; decays as (lr - 1e-6) 0.1^(step / 5e6) + 1e-6."),
+    noise_std: float = typer.Option(0.067, "--noise-std", help="Velocity noise std in m/s (converted to m per frame with the dataset's dt)."),
+    latent: int = typer.Option(128, "--latent", help="Latent size of nodes and edges."),
+    hidden: int = typer.Option(128, "--hidden", help="Units of each hidden MLP layer."),
+    message_passing: int = typer.Option(10, "--message-passing-steps", help="Processor steps (unshared weights)."),
+    save_every: int = typer.Option(1000, "--save-every", help="Steps between checkpoints."),
+    log_every: int = typer.Option(100, "--log-every", help="Steps per log.jsonl line (mean loss)."),
+    valid_every: int = typer.Option(20_000, "--valid-every", help="Steps between validation rollouts (0: never)."),
+    valid_trajectories: int = typer.Option(1, "--valid-trajectories", help="Validation trajectories rolled out each time."),
+    valid_frames: int = typer.Option(0, "--valid-frames", help="Frames per validation rollout (0: whole trajectory)."),
+    seed: int = typer.Option(0, "--seed", help="Seed of the initial weights, window sampling and noise."),
+    bf16: bool = typer.Option(False, "--bf16", help="Autocast the network to bfloat16 (faster on CPUs with AMX and on GPUs)."),
+    checkpoint_layers: bool = typer.Option(True, "--checkpoint-layers/--no-checkpoint-layers", help="Recompute processor steps in backward to save memory."),
+) -> None:
+    """Train the GNS on an MPM dataset (one process, or many under torchrun)."""
+    from runout.gns.simulator import NetworkConfig
+    from runout.train import TrainConfig, train as run_training
+
+    for name, value in (("--steps", steps), ("--batch-size", batch_size), ("--save-every", save_every), ("--log-every", log_every)):
+        if value < 1:
+            raise InputError(f"{name} = {value} must be a positive whole number.")
+    cfg = TrainConfig(
+        data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise_velocity_std=noise_std,
+        seed=seed, device=device, resume=resume, init=init,
+        network=NetworkConfig(latent=latent, hidden=hidden, message_passing_steps=message_passing),
+        save_every=save_every, log_every=log_every, valid_every=valid_every,
+        valid_trajectories=valid_trajectories, valid_frames=valid_frames,
+        checkpoint_layers=checkpoint_layers, bf16=bf16,
+    )
+    run_training(cfg)
+
+
+@app.command()
+def rollout(
+    model: Path = typer.Option(..., "--model", help="GNS checkpoint (.pt)."),
+    source: Path = typer.Argument(..., help="SCENE.toml/.json (starts at rest), a trajectory folder from `runout mpm`, or a dataset folder."),
+    out: Path = typer.Option(..., "--out", help="Output folder: trajectory.npz, metadata.json, metrics.json, pictures, animation."),
+    frames: int = typer.Option(0, "--frames", help="Frames to produce, the first 6 included (0: the scene's or ground truth's count)."),
+    stop_speed: float = typer.Option(0.05, "--stop-speed", help="Stop once every soil point moves slower than this (m/s); 0: never stop early."),
+    split: str = typer.Option("test", "--split", help="For a dataset folder: which split file."),
+    index: int = typer.Option(0, "--index", help="For a dataset folder: which simulation of the split."),
+    device: str = typer.Option("cpu", "--device", help="cpu, cuda or cuda:K."),
+    animation: bool = typer.Option(True, "--animation/--no-animation", help="Write an animation (beside the MPM when there is one)."),
+) -> None:
+    """Roll the GNS out from 6 frames until FRAMES or until the flow stops."""
+    from runout.gns import RolloutDiverged, load_simulator, rollout_trajectory
+
+    simulator = load_simulator(model, device)
+    initial, truth = _initial_state(source, split, index, simulator)
+    n_frames = frames or (truth.n_frames if truth is not None else initial.info.get("frames", 480))
+    if n_frames <= simulator.schema.history:
+        raise InputError(f"--frames = {n_frames} must exceed the {simulator.schema.history} initial frames.")
+    t0 = time.perf_counter()
+    try:
+        predicted = rollout_trajectory(simulator, initial, n_frames, stop_speed or None, progress=True)
+    except RolloutDiverged as exc:
+        typer.secho(f"error: {exc}", err=True, fg=typer.colors.RED)
+        raise typer.Exit(1) from None
+    predicted.info["wall_s"] = round(time.perf_counter() - t0, 3)
+    metrics = _write_outputs(predicted, truth, out, simulator.schema.material_width, animation)
+    typer.echo(json.dumps(metrics, indent=2))
+
+
+def _initial_state(source: Path, split: str, index: int, simulator):
+    """(trajectory whose first frames start the rollout, ground truth or None)."""
+    from runout.gns import scene_at_rest
+    from runout.scene import load_scene
+    from runout.trajectory import load_trajectory
+
+    if source.is_file():
+        scene = load_scene(source)
+        start = scene_at_rest(scene, simulator.schema.history)
+        start.info["frames"] = scene.time.frames
+        _warn_ignored_cohesion(scene, simulator)
+        return start, None
+    if (source / "trajectory.npz").is_file():
+        truth = load_trajectory(source)
+        return truth, truth
+    if (source / f"{split}.npz").is_file():
+        truth = _dataset_trajectory(source, split, index, simulator)
+        return truth, truth
+    raise InputError(f"{source}: neither a scene file, a trajectory folder (trajectory.npz) nor a dataset folder with {split}.npz.")
+
+
+def _dataset_trajectory(folder: Path, split: str, index: int, simulator):
+    from runout.dataset import read_metadata, read_simulations
+    from runout.gns.checkpoint import check_schema
+    from runout.gns.schema import material_names_for_width
+    from runout.trajectory import trajectory_from_features
+
+    sims = read_simulations(folder / f"{split}.npz")
+    if not 0 <= index < len(sims):
+        raise InputError(f"{folder / (split + '.npz')}: --index = {index} is outside [0, {len(sims) - 1}].")
+    positions, ptype, material = sims[index]
+    width = 0 if material is None else material.shape[1]
+    data_schema = simulator.schema.with_material_features(material_names_for_width(width))
+    check_schema(simulator, data_schema, "the model", folder / f"{split}.npz")
+    meta = read_metadata(folder)
+    return trajectory_from_features(positions, ptype, material, meta.get("dt", 0.0375), meta["bounds"], f"{split}_{index}")
+
+
+def _warn_ignored_cohesion(scene, simulator) -> None:
+    if simulator.schema.material_width < 2 and any(m.cohesion > 0 for m in scene.materials.values()):
+        typer.secho("warning: this model has no cohesion input; the scene's cohesion is ignored.", err=True, fg=typer.colors.YELLOW)
+
+
+def _write_outputs(predicted, truth, out: Path, feature_width: int, animation: bool) -> dict:
+    from runout.gns.evaluation import compare, normalised_runout, position_mse, runout_extent
+    from runout.gns.figures import save_animation, save_error_plot, save_snapshots
+    from runout.trajectory import save_trajectory
+
+    predicted.name = f"{predicted.name} (GNS)"
+    save_trajectory(predicted, out, feature_width)
+    save_snapshots(predicted, out / "snapshots.png")
+    metrics = {
+        "frames": predicted.n_frames,
+        "runout_m": runout_extent(predicted, -1),
+        "normalised_runout": normalised_runout(predicted),
+        "wall_s": predicted.info["wall_s"],
+    }
+    if truth is not None:
+        metrics.update(compare(predicted, truth))
+        save_error_plot(position_mse(predicted, truth), predicted.frame_dt, out / "position_mse.png")
+    if animation:
+        metrics["animation"] = str(save_animation(predicted, truth, out / "animation"))
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    return metrics

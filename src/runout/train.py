@@ -1,0 +1,293 @@
+"""One GNS training loop for CPU, one GPU and many GPUs (torchrun + DistributedDataParallel).
+
+Each step draws `batch_size` windows per process, perturbs their input positions with
+random-walk noise (velocity std 0.067 m/s = 0.067 x 0.0375 = 2.5e-3 m per frame),
+corrects the target acceleration, and minimises the squared error of the normalised
+acceleration over the non-kinematic points with Adam and the paper's learning rate
+lr(i) = (1e-4 - 1e-6) 0.1^(i / 5e6) + 1e-6. The random numbers of a step come from
+generators seeded by (seed, step, rank), so a run resumed from any checkpoint repeats
+exactly what an unbroken run would have done (bitwise on CPU). Under torchrun, the
+forward goes through the DDP wrapper, which averages gradients across processes.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from contextlib import nullcontext
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+
+import torch
+import torch.distributed as dist
+from torch.nn.parallel import DistributedDataParallel
+from tqdm.auto import tqdm
+
+from runout.dataset import read_metadata
+from runout.errors import InputError
+from runout.gns.checkpoint import (
+    check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint, widen_material_features,
+)
+from runout.gns.evaluation import compare
+from runout.gns.rollout import rollout_trajectory
+from runout.gns.samples import Simulations
+from runout.gns.simulator import NetworkConfig, Normalisation, Simulator, corrected_target, movable_mask, random_walk_noise
+from runout.trajectory import trajectory_from_features
+
+CHECKPOINT = "checkpoint.pt"
+BEST = "best.pt"
+LOG = "log.jsonl"
+
+
+@dataclass
+class TrainConfig:
+    data: Path
+    out: Path
+    steps: int = 2_000_000  # final value of the step counter
+    batch_size: int = 2  # graphs per process and step
+    lr_init: float = 1e-4
+    lr_final: float = 1e-6
+    lr_decay_steps: float = 5e6
+    noise_velocity_std: float = 0.067  # m/s, converted to m/frame with the dataset's dt
+    seed: int = 0
+    device: str = "auto"  # auto, cpu, cuda, cuda:1, ...
+    resume: bool = False
+    init: Path | None = None  # fine-tune from this checkpoint (widening material inputs if needed)
+    network: NetworkConfig = field(default_factory=NetworkConfig)
+    save_every: int = 1000
+    log_every: int = 100
+    valid_every: int = 20_000  # 0: never
+    valid_trajectories: int = 1
+    valid_frames: int = 0  # 0: the whole trajectory
+    checkpoint_layers: bool = True  # recompute processor steps in backward (less memory)
+    bf16: bool = False  # autocast the network to bfloat16
+    lr_step_offset: int = 0  # learning-rate schedule continues from the base model's step
+
+
+def learning_rate(step: int, cfg: TrainConfig) -> float:
+    i = step + cfg.lr_step_offset
+    return (cfg.lr_init - cfg.lr_final) * 0.1 ** (i / cfg.lr_decay_steps) + cfg.lr_final
+
+
+@dataclass
+class Context:
+    """Where this process runs and whether it is the one that writes."""
+
+    device: torch.device
+    rank: int = 0
+    world: int = 1
+
+    @property
+    def writer(self) -> bool:
+        return self.rank == 0
+
+
+def train(cfg: TrainConfig) -> Simulator:
+    """Train (or resume, or fine-tune) and return the trained simulator (rank 0's copy)."""
+    ctx = _start_processes(cfg.device)
+    try:
+        return _train(cfg, ctx)
+    finally:
+        if ctx.world > 1:
+            dist.destroy_process_group()
+
+
+def _start_processes(device: str) -> Context:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    rank = int(os.environ.get("RANK", "0"))
+    local = int(os.environ.get("LOCAL_RANK", "0"))
+    if device == "auto":
+        device = f"cuda:{local}" if torch.cuda.is_available() else "cpu"
+    elif device == "cuda" and world > 1:
+        device = f"cuda:{local}"
+    dev = torch.device(device)
+    if dev.type == "cuda":
+        torch.cuda.set_device(dev)
+    if world > 1:
+        dist.init_process_group("nccl" if dev.type == "cuda" else "gloo")
+    return Context(dev, rank, world)
+
+
+def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
+    meta = read_metadata(cfg.data)
+    data = Simulations(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"))
+    simulator, state, cfg = _build(cfg, meta, data)
+    simulator.to(ctx.device).train()
+    simulator.network.checkpoint_steps = cfg.checkpoint_layers
+    optimizer = torch.optim.Adam(simulator.parameters(), lr=cfg.lr_init)
+    if state:
+        optimizer.load_state_dict(state["optimizer"])
+        torch.set_rng_state(state["rng"]["torch"])
+    model = DistributedDataParallel(simulator) if ctx.world > 1 else simulator
+    bounds = torch.tensor(meta["bounds"], dtype=torch.float32, device=ctx.device)
+    log = RunLog(Path(cfg.out), ctx, state["step"] if state else 0)
+    best = state.get("best_valid", float("inf")) if state else float("inf")
+    start = state["step"] if state else 0
+    losses: list[torch.Tensor] = []
+    for step in range(start, cfg.steps):
+        lr = learning_rate(step, cfg)
+        for group in optimizer.param_groups:
+            group["lr"] = lr
+        loss = _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx)
+        losses.append(loss.detach())
+        done = step + 1
+        if done % cfg.log_every == 0 or done % cfg.save_every == 0 or done == cfg.steps:
+            log.losses(done, losses, lr, cfg.log_every)
+            losses = []
+        if cfg.valid_every and done % cfg.valid_every == 0 and ctx.writer:
+            best = _validate(simulator, cfg, meta, log, done, best)
+        if (done % cfg.save_every == 0 or done == cfg.steps) and ctx.writer:
+            _save(Path(cfg.out) / CHECKPOINT, simulator, optimizer, done, cfg, best)
+    log.close()
+    return simulator.eval()
+
+
+def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> torch.Tensor:
+    sampler, noise_gen = _generators(cfg.seed, step, ctx)
+    batch = data.sample(cfg.batch_size, sampler)
+    movable = movable_mask(batch.particle_type)
+    noise = random_walk_noise(batch.window, simulator.stats.noise_std, movable, noise_gen)
+    noisy = batch.window + noise
+    target = simulator.normalise_acceleration(corrected_target(noisy, batch.next_position, noise))
+    autocast = torch.autocast(ctx.device.type, dtype=torch.bfloat16) if cfg.bf16 else nullcontext()
+    with autocast:
+        predicted = model(noisy, batch.particle_type, batch.material, bounds, batch.graph)
+    error = (predicted.float() - target).square().sum(dim=1)
+    loss = (error * movable).sum() / movable.sum().clamp(min=1)
+    optimizer.zero_grad(set_to_none=True)
+    loss.backward()
+    optimizer.step()
+    return loss
+
+
+def _generators(seed: int, step: int, ctx: Context) -> tuple[torch.Generator, torch.Generator]:
+    """Window sampler (CPU) and noise generator (training device) for one step and rank."""
+    key = hash((seed, step, ctx.rank)) & 0x7FFF_FFFF_FFFF_FFFF
+    sampler = torch.Generator().manual_seed(key)
+    noise = torch.Generator(device=ctx.device).manual_seed(key ^ 0x5DEECE66D)
+    return sampler, noise
+
+
+def _build(cfg: TrainConfig, meta: dict, data: Simulations):
+    """The simulator to train, the resumed training state (or None) and the settings."""
+    out = Path(cfg.out)
+    if cfg.resume:
+        path = out / CHECKPOINT
+        ckpt = read_checkpoint(path)
+        simulator = simulator_from_checkpoint(ckpt, path)
+        check_schema(simulator, data.schema(simulator.schema), path, data.path)
+        return simulator, ckpt, replace(cfg, lr_step_offset=ckpt["train"]["lr_step_offset"])
+    if (out / CHECKPOINT).exists():
+        raise InputError(f"{out / CHECKPOINT}: already exists; pass --resume to continue it or choose another --out.")
+    if cfg.init is not None:
+        base = read_checkpoint(cfg.init)
+        simulator = simulator_from_checkpoint(base, cfg.init)
+        wanted = data.schema(simulator.schema)
+        if wanted.material_features != simulator.schema.material_features:
+            widen_material_features(simulator, wanted.material_features, cfg.init)
+        check_schema(simulator, wanted, cfg.init, data.path)
+        return simulator, None, replace(cfg, lr_step_offset=int(base.get("step", 0)) + base.get("train", {}).get("lr_step_offset", 0))
+    stats = Normalisation.from_metadata(meta, cfg.noise_velocity_std * float(meta.get("dt", 0.0375)))
+    schema = data.schema()
+    torch.manual_seed(cfg.seed)
+    return Simulator(schema, stats, float(meta["default_connectivity_radius"]), cfg.network), None, cfg
+
+
+def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: float) -> None:
+    train_settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
+    save_checkpoint(
+        path, simulator, optimizer=optimizer.state_dict(), step=step, train=train_settings,
+        rng={"seed": cfg.seed, "torch": torch.get_rng_state()}, best_valid=best,
+    )
+
+
+def _validate(simulator: Simulator, cfg: TrainConfig, meta: dict, log: "RunLog", step: int, best: float) -> float:
+    """Roll out the first validation trajectories; keep best.pt by mean position MSE."""
+    path = Path(cfg.data) / "valid.npz"
+    if not path.is_file():
+        return best
+    from runout.dataset import read_simulations
+
+    results = []
+    simulator.eval()
+    for positions, ptype, material in read_simulations(path)[: cfg.valid_trajectories]:
+        truth = trajectory_from_features(positions, ptype, material, meta.get("dt", 0.0375), meta["bounds"])
+        frames = cfg.valid_frames or truth.n_frames
+        predicted = rollout_trajectory(simulator, truth, min(frames, truth.n_frames), stop_speed=None)
+        results.append(compare(predicted, truth))
+    simulator.train()
+    mse = sum(r["position_mse_mean_m2"] for r in results) / len(results)
+    runout = sum(abs(r["runout_error"]) for r in results) / len(results)
+    log.validation(step, mse, runout)
+    if mse < best:
+        save_checkpoint(Path(cfg.out) / BEST, simulator, step=step, best_valid=mse)
+    return min(mse, best)
+
+
+class RunLog:
+    """log.jsonl (always), TensorBoard (when installed) and a progress bar, on rank 0.
+    On resume, log lines beyond the checkpoint's step are dropped: they are redone."""
+
+    def __init__(self, out: Path, ctx: Context, start: int):
+        self.ctx = ctx
+        self.path = out / LOG
+        self.bar = None
+        self.tensorboard = None
+        if not ctx.writer:
+            return
+        out.mkdir(parents=True, exist_ok=True)
+        self._truncate(start)
+        self.bar = tqdm(initial=start, desc="GNS training", unit="step", dynamic_ncols=True)
+        self.tensorboard = _tensorboard_writer(out)
+        self.t0 = time.perf_counter()
+
+    def _truncate(self, start: int) -> None:
+        if not self.path.exists():
+            return
+        kept = [ln for ln in self.path.read_text().splitlines() if ln and json.loads(ln)["step"] <= start]
+        self.path.write_text("".join(ln + "\n" for ln in kept))
+
+    def losses(self, step: int, losses: list[torch.Tensor], lr: float, every: int) -> None:
+        """Record the mean loss of each group of `every` steps (averaged over processes)."""
+        values = torch.stack(losses)
+        if self.ctx.world > 1:
+            dist.all_reduce(values)
+            values /= self.ctx.world
+        if not self.ctx.writer:
+            return
+        values = values.tolist()
+        groups = [values[k : k + every] for k in range(0, len(values), every)]
+        first = step - len(values)
+        for k, group in enumerate(groups):
+            last = min(first + (k + 1) * every, step)
+            self._write({"step": last, "loss": sum(group) / len(group), "lr": lr})
+            if self.tensorboard:
+                self.tensorboard.add_scalar("train/loss", sum(group) / len(group), last)
+        self.bar.update(len(values))
+        self.bar.set_postfix(loss=f"{values[-1]:.4g}", lr=f"{lr:.3g}")
+
+    def validation(self, step: int, mse: float, runout_error: float) -> None:
+        self._write({"step": step, "valid_position_mse_m2": mse, "valid_runout_error": runout_error})
+        if self.tensorboard:
+            self.tensorboard.add_scalar("valid/position_mse_m2", mse, step)
+            self.tensorboard.add_scalar("valid/runout_error", runout_error, step)
+
+    def _write(self, record: dict) -> None:
+        record["wall_s"] = round(time.perf_counter() - self.t0, 3)
+        with self.path.open("a") as f:
+            f.write(json.dumps(record) + "\n")
+
+    def close(self) -> None:
+        if self.bar is not None:
+            self.bar.close()
+        if self.tensorboard:
+            self.tensorboard.close()
+
+
+def _tensorboard_writer(out: Path):
+    try:
+        from torch.utils.tensorboard import SummaryWriter
+    except ImportError:  # tensorboard is optional; log.jsonl is always written
+        return None
+    return SummaryWriter(str(out / "tensorboard"))

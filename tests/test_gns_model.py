@@ -1,0 +1,167 @@
+import pytest
+import torch
+from torch import nn
+
+from runout.errors import InputError
+from runout.gns import FeatureSchema, NetworkConfig, Normalisation, RolloutDiverged, Simulator, load_simulator, rollout
+from runout.gns.checkpoint import check_schema, save_checkpoint, widen_material_features
+from runout.gns.network import EdgeUpdate
+from runout.gns.rollout import CHECK_EVERY, MIN_FRAMES_BEFORE_STOP
+from runout.gns.simulator import corrected_target, random_walk_noise
+
+torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
+
+TINY = NetworkConfig(latent=16, hidden=16, hidden_layers=2, message_passing_steps=2)
+STATS = Normalisation((0.0, -0.01), (0.02, 0.03), (0.0, -1e-3), (2e-3, 3e-3), 2.5e-3)
+BOUNDS = torch.tensor([[0.0, 40.0], [0.0, 20.0]])
+
+
+def tiny_simulator(materials=("tan_phi",), seed=0) -> Simulator:
+    torch.manual_seed(seed)
+    return Simulator(FeatureSchema(material_features=materials), STATS, 4.6, TINY).eval()
+
+
+def heap(n_steps_history=6):
+    """A little heap of 30 soil points on 10 ground points, drifting right: [6, N, 2]."""
+    soil = torch.stack(torch.meshgrid(torch.arange(6.0), torch.arange(5.0), indexing="ij"), -1).reshape(-1, 2) * 2
+    soil = soil + torch.tensor([10.0, 4.0])
+    ground = torch.stack([torch.arange(10.0) * 2 + 8, torch.full((10,), 2.0)], -1)
+    x0 = torch.cat([ground, soil])
+    drift = torch.cat([torch.zeros(10), torch.full((30,), 0.05)])
+    frames = torch.stack([x0 + torch.stack([drift * t, torch.zeros(40)], -1) for t in range(n_steps_history)])
+    ptype = torch.cat([torch.full((10,), 3), torch.full((30,), 6)])
+    return frames, ptype
+
+
+def test_noise_is_a_random_walk_with_the_stated_velocity_std():
+    sigma = 0.067 * 0.0375  # m/frame: 0.067 m/s x 0.0375 s
+    window = torch.zeros((200_000, 6, 2))
+    movable = torch.ones(200_000, dtype=torch.bool)
+    movable[:1000] = False
+    noise = random_walk_noise(window, sigma, movable, torch.Generator().manual_seed(0))
+    velocity = noise[1000:, 1:] - noise[1000:, :-1]
+    increments = velocity[:, 1:] - velocity[:, :-1]
+    assert noise[:, 0].abs().max() == 0 and noise[:1000].abs().max() == 0
+    assert velocity[:, -1].std().item() == pytest.approx(sigma, rel=0.01)
+    assert increments.std().item() == pytest.approx(sigma / 5**0.5, rel=0.01)
+    assert velocity.mean().abs().item() < 1e-5
+
+
+def test_corrected_target_restores_the_true_next_velocity():
+    frames, ptype = heap(7)
+    window, true_next = frames[:6].transpose(0, 1), frames[6]
+    noise = random_walk_noise(window, 0.05, ptype != 3, torch.Generator().manual_seed(3))
+    noisy = window + noise
+    a = corrected_target(noisy, true_next, noise)
+    updated = noisy[:, -1] + (noisy[:, -1] - noisy[:, -2]) + a  # the simulator's update
+    torch.testing.assert_close(updated - noise[:, -1], true_next)  # true next position
+    torch.testing.assert_close(updated - noisy[:, -1], true_next - window[:, -1])  # true next velocity
+
+
+def test_split_first_edge_layer_equals_the_concatenated_layer():
+    torch.manual_seed(0)
+    edge = EdgeUpdate(latent=8, hidden=8, hidden_layers=2)
+    v, e = torch.randn(5, 8), torch.randn(7, 8)
+    s, r = torch.tensor([0, 1, 2, 3, 4, 0, 2]), torch.tensor([1, 1, 0, 4, 3, 2, 2])
+    w_s, w_r = edge.project_nodes.weight.chunk(2, dim=0)
+    b_s, b_r = edge.project_nodes.bias.chunk(2)
+    concat = nn.Linear(24, 8)
+    with torch.no_grad():
+        concat.weight.copy_(torch.cat([w_s, w_r, edge.project_edges.weight], dim=1))
+        concat.bias.copy_(b_s + b_r)
+    expected = edge.rest(concat(torch.cat([v[s], v[r], e], dim=1)))
+    torch.testing.assert_close(edge(v, e, s, r), expected)
+
+
+def test_widened_model_predicts_exactly_what_the_base_predicted():
+    frames, ptype = heap()
+    base = tiny_simulator(("tan_phi",))
+    tan_phi = torch.full((40, 1), 0.6)
+    with torch.no_grad():
+        before = base.next_positions(frames.transpose(0, 1), ptype, tan_phi, BOUNDS)
+        widened = widen_material_features(base, ("tan_phi", "c_over_100kPa"))
+        cohesion = torch.rand((40, 1))
+        after = widened.next_positions(frames.transpose(0, 1), ptype, torch.cat([tan_phi, cohesion], 1), BOUNDS)
+    assert widened.schema.material_width == 2
+    assert torch.equal(before, after)
+
+
+def test_widening_refuses_a_list_that_does_not_extend_the_old_one():
+    with pytest.raises(InputError, match="must start with the old one"):
+        widen_material_features(tiny_simulator(("tan_phi",)), ("c_over_100kPa",))
+
+
+def test_schema_mismatch_names_the_difference_in_one_sentence():
+    sim = tiny_simulator(("tan_phi",))
+    data = FeatureSchema(material_features=("tan_phi", "c_over_100kPa"))
+    with pytest.raises(InputError) as err:
+        check_schema(sim, data, "base.pt", "data/train.npz")
+    message = str(err.value)
+    assert "material_features is [tan_phi] in the model but [tan_phi, c_over_100kPa] in the data" in message
+    assert message.count(". ") == 0 and message.endswith(".")
+
+
+def test_checkpoint_round_trip_keeps_predictions_and_schema(tmp_path):
+    frames, ptype = heap()
+    sim = tiny_simulator(("tan_phi", "c_over_100kPa"))
+    material = torch.rand((40, 2))
+    save_checkpoint(tmp_path / "m.pt", sim, step=7)
+    loaded = load_simulator(tmp_path / "m.pt")
+    assert loaded.schema == sim.schema and not loaded.training
+    with torch.no_grad():
+        args = (frames.transpose(0, 1), ptype, material, BOUNDS)
+        assert torch.equal(sim.next_positions(*args), loaded.next_positions(*args))
+
+
+def test_a_file_that_is_no_checkpoint_is_a_one_line_input_error(tmp_path):
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="junk.pt: not a readable PyTorch checkpoint"):
+        load_simulator(tmp_path / "junk.pt")
+    torch.save({"format": "other"}, tmp_path / "other.pt")
+    with pytest.raises(InputError, match="expected a runout GNS checkpoint"):
+        load_simulator(tmp_path / "other.pt")
+
+
+def test_rollout_keeps_kinematic_points_and_stays_in_the_domain():
+    frames, ptype = heap()
+    frames[:, 10:, 0] += 15.0  # heap near the right wall, drifting into it
+    sim = tiny_simulator()
+    with torch.no_grad():
+        out = rollout(sim, frames, ptype, torch.full((40, 1), 0.5), 25, BOUNDS)
+    assert out.shape == (31, 40, 2)
+    assert torch.equal(out[:, :10], frames[:1, :10].expand(31, -1, -1))
+    assert (out[..., 0] >= 0).all() and (out[..., 0] <= 40).all()
+    assert (out[..., 1] >= 0).all() and (out[..., 1] <= 20).all()
+
+
+def test_a_nan_stops_the_rollout_with_a_clear_error():
+    frames, ptype = heap()
+    sim = tiny_simulator()
+    with torch.no_grad():
+        sim.network.decoder[-1].bias.fill_(float("nan"))
+        with pytest.raises(RolloutDiverged, match="non-finite positions by step 10"):
+            rollout(sim, frames, ptype, torch.full((40, 1), 0.5), 30, BOUNDS)
+
+
+def test_checkpointed_rollout_gives_the_same_gradient_as_a_plain_one():
+    frames, ptype = heap()
+    sim = tiny_simulator()
+    grads = []
+    for checkpoint in (False, True):
+        material = torch.full((40, 1), 0.5, requires_grad=True)
+        out = rollout(sim, frames, ptype, material, 12, BOUNDS, checkpoint=checkpoint)
+        out[-1, 10:, 0].sum().backward()
+        grads.append(material.grad)
+    assert grads[0].abs().sum() > 0
+    torch.testing.assert_close(grads[0], grads[1])
+
+
+def test_rollout_stops_when_the_flow_stops():
+    frames, ptype = heap()
+    sim = tiny_simulator()
+    with torch.no_grad():
+        sim.network.decoder[-1].weight.zero_()
+        sim.network.decoder[-1].bias.copy_(-sim.acc_mean / sim.acc_scale)  # zero acceleration
+        still = frames[-1:].expand(6, -1, -1)
+        out = rollout(sim, still, ptype, torch.full((40, 1), 0.5), 200, BOUNDS, stop_speed=1e-4)
+    assert MIN_FRAMES_BEFORE_STOP <= out.shape[0] < MIN_FRAMES_BEFORE_STOP + 2 * CHECK_EVERY
