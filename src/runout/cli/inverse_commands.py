@@ -1,0 +1,47 @@
+"""`runout invert`: back-calculate material strengths from an observed runout."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from runout.cli.app import app
+
+
+@app.command()
+def invert(
+    spec: Path = typer.Argument(..., help="Inverse spec (TOML), see docs/inverse-format.md."),
+    model: Path = typer.Option(None, "--model", help="GNS checkpoint (needed by the gns engine)."),
+    out: Path = typer.Option(..., "--out", help="Output folder; a run killed part-way resumes from it."),
+    device: str = typer.Option("cpu", help="cpu or cuda."),
+    starts: int = typer.Option(1, help="Starting points: the spec's initial values, then a Latin hypercube (seed 0)."),
+    engine: str = typer.Option("gns", help="gns (autodiff through the GNS rollout) or mpm-fd (MPM runs, central differences)."),
+    fd_step: float = typer.Option(0.01, help="mpm-fd: finite-difference step as a fraction of each parameter's bounds."),
+    checkpoint: bool = typer.Option(True, help="Recompute each rollout step in the backward pass (much less memory)."),
+    plot_iterations: str = typer.Option(None, help="Iterations to draw in deposit.png, e.g. '0,1,last' (default: first, second, middle, last)."),
+) -> None:
+    """Fit the spec's free material parameters (phi in degrees, c in kPa) to the target runout
+    with L-BFGS-B inside their bounds; writes history.csv, history.json, loss.png,
+    parameters.png and deposit.png, and prints the answer with its bounds."""
+    import torch
+
+    from runout.errors import InputError
+    from runout.gns import RolloutDiverged
+    from runout.inverse import invert as run_inversion, summary_lines
+
+    if device.startswith("cuda") and not torch.cuda.is_available():
+        raise InputError("--device cuda was asked for but no CUDA GPU is available; use --device cpu.")
+    try:
+        result = run_inversion(
+            spec, out, model=model, device=device, starts=starts, engine=engine, fd_step=fd_step,
+            checkpoint=checkpoint, plot_iterations=plot_iterations, log=typer.echo,
+        )
+    except RolloutDiverged as exc:
+        typer.secho(f"error: {exc} The history so far is in {out}.", err=True, fg=typer.colors.RED)
+        raise typer.Exit(1)
+    for line in summary_lines(result):
+        typer.echo(line)
+    where = f"{out}/start_*/" if starts > 1 else f"{out}/"
+    typer.echo(f"wrote {where}history.csv, history.json, loss.png, parameters.png, deposit.png"
+               + (f"; {out}/starts.json, starts.csv, starts.png" if starts > 1 else ""))

@@ -1,0 +1,120 @@
+"""Figures of an inverse run: loss history, parameter history, predicted deposit against the target."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from matplotlib.figure import Figure  # no pyplot: no global figure state, no GUI backend
+from matplotlib.ticker import MaxNLocator
+
+from runout.errors import InputError
+from runout.inverse.history import History
+from runout.inverse.optimise import StartResult, deposit_path
+
+
+def default_iterations(available: list[int]) -> list[int]:
+    """The first, second, middle and last iterate."""
+    picks = [available[0], available[min(1, len(available) - 1)], available[len(available) // 2], available[-1]]
+    return sorted(set(picks))
+
+
+def parse_iterations(text: str | None, available: list[int]) -> list[int]:
+    """'0,3,last' -> iteration numbers; None -> default_iterations."""
+    if text is None:
+        return default_iterations(available)
+    chosen = []
+    for item in text.split(","):
+        item = item.strip()
+        number = available[-1] if item == "last" else int(item) if item.isdigit() else None
+        if number is None or number not in available:
+            raise InputError(
+                f"--plot-iterations: '{item}' is not one of the run's iterations 0-{available[-1]} or 'last'."
+            )
+        chosen.append(number)
+    return sorted(set(chosen))
+
+
+def draw_loss(history: History, path: Path) -> None:
+    its = history.iterations
+    model = [history.model_loss(r) for r in its]
+    panels = 2 if model and model[0] is not None else 1
+    fig, axes = _figure(1, panels, figsize=(5 * panels, 3.6))
+    ax = axes[0, 0]
+    ax.semilogy([r.iteration for r in its], [r.loss for r in its], "o-", color="k")
+    ax.set(xlabel="iteration", ylabel="data loss (m$^2$)", title="Data loss")
+    if panels == 2:
+        axes[0, 1].semilogy([r.iteration for r in its], np.maximum(model, 1e-16), "o-", color="tab:red")
+        axes[0, 1].set(xlabel="iteration", ylabel="MSE of normalised parameters", title="Model loss")
+    _save(fig, path)
+
+
+def draw_parameters(history: History, path: Path) -> None:
+    its = history.iterations
+    n = len(history.free)
+    fig, axes = _figure(1, n, figsize=(4 * n, 3.4))
+    for k, (p, ax) in enumerate(zip(history.free, axes[0])):
+        ax.plot([r.iteration for r in its], [r.values[k] for r in its], "o-", color="tab:blue", label="estimate")
+        ax.axhspan(p.lower, p.upper, color="0.92", zorder=0, label="bounds")
+        ax.axhline(p.lower, color="0.5", lw=0.8, ls="--")
+        ax.axhline(p.upper, color="0.5", lw=0.8, ls="--")
+        if history.true_values is not None:
+            ax.axhline(history.true_values[k], color="tab:red", ls=":", label="true")
+        ax.set(xlabel="iteration", ylabel=f"{p.name} ({p.unit})", title=p.name)
+    axes[0, 0].legend(fontsize=8)
+    _save(fig, path)
+
+
+def draw_deposits(
+    history: History,
+    target: np.ndarray,  # [N, 2] m, target at the last observed frame
+    material_id: np.ndarray,  # [N]
+    moving: np.ndarray,  # [N] bool, points that are not kinematic
+    iterations: list[int],
+    path: Path,
+) -> None:
+    by_iteration = {r.iteration: r for r in history.iterations}
+    fig, axes = _figure(len(iterations), 1, figsize=(10, 2.6 * len(iterations)))
+    lo, hi = target[moving].min(axis=0), target[moving].max(axis=0)
+    for ax, it in zip(axes[:, 0], iterations):
+        record = by_iteration[it]
+        predicted = np.load(deposit_path(history.out_dir, record.evaluation))
+        ax.scatter(*target[moving].T, s=3, c="0.75", label="target")
+        ax.scatter(*predicted[moving].T, s=1, c=material_id[moving], cmap="tab10", vmin=0, vmax=9, label="predicted")
+        values = ", ".join(f"{p.name} = {v:.3g} {p.unit}" for p, v in zip(history.free, record.values))
+        ax.set_title(f"iteration {it}: {values}", fontsize=9)
+        ax.set_aspect("equal")
+        pad = 0.05 * (hi - lo).max()
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(lo[1] - pad, hi[1] + pad)
+    axes[0, 0].legend(loc="upper right", fontsize=8, markerscale=4)
+    axes[-1, 0].set_xlabel("x (m)")
+    _save(fig, path)
+
+
+def draw_starts(results: list[StartResult], path: Path) -> None:
+    """Parameter histories of every start in one figure, to show where the answers gather."""
+    free = results[0].history.free
+    fig, axes = _figure(1, len(free), figsize=(4 * len(free), 3.4))
+    for k, (p, ax) in enumerate(zip(free, axes[0])):
+        for n, result in enumerate(results):
+            its = result.history.iterations
+            ax.plot([r.iteration for r in its], [r.values[k] for r in its], "o-", ms=3, label=f"start {n}")
+        ax.axhline(p.lower, color="0.5", lw=0.8, ls="--")
+        ax.axhline(p.upper, color="0.5", lw=0.8, ls="--")
+        ax.set(xlabel="iteration", ylabel=f"{p.name} ({p.unit})", title=p.name)
+    axes[0, 0].legend(fontsize=7)
+    _save(fig, path)
+
+
+def _figure(rows: int, cols: int, figsize: tuple[float, float]):
+    fig = Figure(figsize=figsize)
+    return fig, fig.subplots(rows, cols, squeeze=False)
+
+
+def _save(fig: Figure, path: Path) -> None:
+    for ax in fig.axes:
+        if ax.get_xlabel() == "iteration":
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)

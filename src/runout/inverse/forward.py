@@ -1,0 +1,64 @@
+"""The GNS as the inverse's forward model: material features -> positions at the observed frames."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from runout.errors import InputError
+from runout.gns import Simulator, load_simulator, rollout
+from runout.inverse.observation import Observation
+from runout.inverse.problem import ForwardModel, InverseProblem, material_table
+from runout.inverse.spec import INPUT_FRAMES, InverseSpec
+
+
+def gns_forward(simulator: Simulator, observation: Observation, bounds: np.ndarray, checkpoint: bool = True) -> ForwardModel:
+    """A rollout from the scene at rest (INPUT_FRAMES identical frames) for observation.steps
+    steps, each step recomputed in the backward pass when `checkpoint`; returns the frames
+    observed, [F, N, 2] (m)."""
+    device = simulator.vel_mean.device
+    initial = torch.tensor(observation.initial, dtype=torch.float32, device=device)
+    window = initial[None].expand(INPUT_FRAMES, -1, -1)
+    particle_type = torch.as_tensor(observation.particle_type, device=device)
+    frames = torch.tensor(observation.frames, device=device)
+
+    def forward(features: torch.Tensor) -> torch.Tensor:
+        positions = rollout(simulator, window, particle_type, features, observation.steps, bounds, checkpoint=checkpoint)
+        return positions[frames]
+
+    return forward
+
+
+def domain_bounds(spec: InverseSpec) -> np.ndarray:
+    """[[x_lo, x_hi], [y_lo, y_hi]] (m)."""
+    return np.array([[0.0, spec.scene.domain.width], [0.0, spec.scene.domain.height]])
+
+
+def inverse_problem(
+    spec: InverseSpec, observation: Observation, simulator: Simulator, checkpoint: bool = True
+) -> InverseProblem:
+    """The GNS inverse problem; the model's own weights are frozen (no gradient wasted on them)."""
+    if simulator.schema.history != INPUT_FRAMES:
+        raise InputError(
+            f"the model reads {simulator.schema.history} positions per step; the inverse seeds rollouts with {INPUT_FRAMES}."
+        )
+    simulator.requires_grad_(False)
+    return InverseProblem(
+        free=spec.free,
+        material_names=spec.scene.material_names,
+        table=material_table(spec.scene),
+        material_id=observation.material_id,
+        feature_width=simulator.schema.material_width,
+        forward=gns_forward(simulator, observation, domain_bounds(spec), checkpoint),
+        target=observation.positions,
+        weights=observation.weights(spec.loss),
+        device=str(simulator.vel_mean.device),
+    )
+
+
+def load_model(path: Path | None, device: str) -> Simulator:
+    if path is None:
+        raise InputError("the gns engine needs a trained model; pass --model CHECKPOINT.")
+    return load_simulator(path, device=device)

@@ -1,0 +1,135 @@
+"""The observation an inverse analysis fits: target positions at chosen frames, point by point.
+
+The target's points must be the scene's points in the order `fill_points` seeds them (as a
+trajectory from `runout mpm` of the same scene has them).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from runout.errors import InputError
+from runout.inverse.spec import INPUT_FRAMES, InverseSpec, LossSpec
+from runout.scene import PARTICLE_TYPE_KINEMATIC, fill_points
+from runout.trajectory import Trajectory, load_trajectory
+
+
+@dataclass
+class Observation:
+    frames: tuple[int, ...]  # observed frame numbers (0-based, >= 6)
+    positions: np.ndarray  # [F, N, 2] m, target positions at those frames
+    steps: int  # rollout steps; the rollout's last frame is INPUT_FRAMES - 1 + steps
+    initial: np.ndarray  # [N, 2] m, the scene at rest
+    particle_type: np.ndarray  # [N]
+    material_id: np.ndarray  # [N] index into spec.scene.material_names
+    true_values: list[float] | None  # free parameters that made the target, when known
+
+    def weights(self, loss: LossSpec) -> np.ndarray:
+        """[N] loss weight per point: 0 on kinematic points, else 1 (uniform) or
+        1 + front_weight * displacement / largest displacement (toward the runout front)."""
+        moving = (self.particle_type != PARTICLE_TYPE_KINEMATIC).astype(float)
+        if loss.weighting == "uniform":
+            return moving
+        moved = np.linalg.norm(self.positions[-1] - self.initial, axis=1) * moving  # m
+        return moving * (1.0 + loss.front_weight * moved / max(float(moved.max()), 1e-12))
+
+
+def load_observation(spec: InverseSpec) -> Observation:
+    points = fill_points(spec.scene)
+    if spec.target.trajectory is not None:
+        traj = load_trajectory(spec.target.trajectory)
+        _check_same_points(traj, points.position, spec.target.trajectory)
+        frames, steps = _frames_in_trajectory(spec, traj.n_frames)
+        positions = traj.positions[list(frames)]
+        true_values = _true_values(spec, traj)
+    else:
+        positions, frames, steps = _observed_positions(spec, len(points))
+        true_values = None
+    return Observation(
+        frames=frames,
+        positions=np.asarray(positions, dtype=np.float64),
+        steps=steps,
+        initial=points.position,
+        particle_type=points.particle_type,
+        material_id=points.material_id,
+        true_values=true_values,
+    )
+
+
+def _check_same_points(traj: Trajectory, initial: np.ndarray, path: Path) -> None:
+    if traj.n_points != len(initial):
+        raise InputError(
+            f"{path}: the target has {traj.n_points} points but the scene fills {len(initial)}; "
+            "the target must be a run of the same scene."
+        )
+    offset = float(np.abs(traj.positions[0] - initial).max())  # m
+    if offset > 0.5:
+        raise InputError(
+            f"{path}: the target's first frame is up to {offset:.3g} m away from the scene's points; "
+            "the target must be a run of the same scene."
+        )
+
+
+def _frames_in_trajectory(spec: InverseSpec, n_frames: int) -> tuple[tuple[int, ...], int]:
+    last_target = n_frames - 1
+    if last_target < INPUT_FRAMES:
+        raise InputError(f"{spec.target.trajectory}: the target has only {n_frames} frames; it needs more than {INPUT_FRAMES}.")
+    frames = spec.target.frames
+    if frames is None:
+        last = last_target if spec.steps is None else INPUT_FRAMES - 1 + spec.steps
+        frames = (last,)
+    if frames[-1] > last_target:
+        raise InputError(
+            f"{spec.source}: observed frame {frames[-1]} is beyond the target trajectory's last frame {last_target}."
+        )
+    return frames, _steps(spec, frames)
+
+
+def _steps(spec: InverseSpec, frames: tuple[int, ...]) -> int:
+    """Roll out as far as the last observed frame, unless the spec sets the steps."""
+    if spec.steps is None:
+        return frames[-1] - (INPUT_FRAMES - 1)
+    last = INPUT_FRAMES - 1 + spec.steps
+    if frames[-1] > last:
+        raise InputError(
+            f"{spec.source}: observed frame {frames[-1]} is beyond the rollout, whose last frame is {last} "
+            f"(rollout.steps = {spec.steps})."
+        )
+    return spec.steps
+
+
+def _observed_positions(spec: InverseSpec, n_points: int):
+    path = spec.target.positions
+    if not path.is_file():
+        raise InputError(f"{path}: no such observed-positions file.")
+    try:
+        positions = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable .npy array ({exc}).") from None
+    if positions.ndim == 2:
+        positions = positions[None]
+    frames = spec.target.frames
+    if frames is None:
+        steps = spec.steps if spec.steps is not None else spec.scene.time.frames - INPUT_FRAMES
+        if steps < 1:
+            raise InputError(f"{spec.source}: the scene's {spec.scene.time.frames} frames leave no step to roll out.")
+        frames = (INPUT_FRAMES - 1 + steps,)
+    if positions.shape != (len(frames), n_points, 2):
+        raise InputError(
+            f"{path}: holds an array of shape {positions.shape}; expected ({len(frames)}, {n_points}, 2) "
+            "for the observed frames and the scene's points."
+        )
+    if not np.isfinite(positions).all():
+        raise InputError(f"{path}: the observed positions contain NaN or infinite values.")
+    return positions, frames, _steps(spec, frames)
+
+
+def _true_values(spec: InverseSpec, traj: Trajectory) -> list[float] | None:
+    """The free parameters' values in the target's material table, when it names the materials."""
+    table = {m.name: m for m in traj.materials}
+    if not all(p.material in table for p in spec.free):
+        return None
+    return [float(getattr(table[p.material], p.field)) for p in spec.free]

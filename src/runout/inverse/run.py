@@ -1,0 +1,124 @@
+"""`invert`: the whole inverse analysis, as the command line runs it (also for notebooks)."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from runout.errors import InputError
+from runout.inverse.figures import draw_deposits, draw_loss, draw_parameters, draw_starts, parse_iterations
+from runout.inverse.history import RunInfo
+from runout.inverse.memory import PeakMemory
+from runout.inverse.observation import Observation, load_observation
+from runout.inverse.optimise import Log, StartResult, run_starts, spread
+from runout.inverse.spec import InverseSpec, load_inverse_spec
+from runout.scene import PARTICLE_TYPE_KINEMATIC
+
+ENGINES = ("gns", "mpm-fd")
+
+
+@dataclass
+class InversionResult:
+    spec: InverseSpec
+    starts: list[StartResult]
+    spread: list[dict]  # per parameter, over the starts (see optimise.spread)
+
+    @property
+    def best(self) -> StartResult:
+        return min(self.starts, key=lambda r: r.loss)
+
+
+def invert(
+    spec_path: str | Path,
+    out_dir: str | Path,
+    model: str | Path | None = None,
+    device: str = "cpu",
+    starts: int = 1,
+    engine: str = "gns",
+    fd_step: float = 0.01,
+    checkpoint: bool = True,
+    plot_iterations: str | None = None,
+    log: Log | None = None,
+) -> InversionResult:
+    """Back-calculate the spec's free parameters; write histories and figures to out_dir.
+
+    A run killed part-way resumes when called again with the same arguments."""
+    if engine not in ENGINES:
+        raise InputError(f"--engine {engine!r} must be one of {', '.join(ENGINES)}.")
+    if starts < 1:
+        raise InputError(f"--starts {starts} must be at least 1.")
+    spec = load_inverse_spec(spec_path)
+    observation = load_observation(spec)
+    evaluate, model_name = _evaluator(spec, observation, engine, model, device, fd_step, checkpoint)
+    info = RunInfo(digest=spec.digest, engine=engine, model=model_name, start=[])
+    results = run_starts(
+        evaluate, spec.free, starts, Path(out_dir), info, spec.optimiser,
+        PeakMemory(device).measure, observation.true_values, log,
+    )
+    for result in results:
+        _draw(result, observation, plot_iterations)
+    inversion = InversionResult(spec, results, spread(results, spec.free))
+    if starts > 1:
+        _write_starts(inversion, Path(out_dir))
+    return inversion
+
+
+def _evaluator(spec, observation, engine, model, device, fd_step, checkpoint):
+    if engine == "mpm-fd":
+        from runout.inverse.mpm_fd import MpmFiniteDifference
+
+        return MpmFiniteDifference(spec, observation, fd_step, device), ""
+    from runout.inverse.forward import inverse_problem, load_model
+
+    simulator = load_model(None if model is None else Path(model), device)
+    return inverse_problem(spec, observation, simulator, checkpoint).evaluate, str(Path(model).resolve())
+
+
+def _draw(result: StartResult, observation: Observation, plot_iterations: str | None) -> None:
+    history = result.history
+    draw_loss(history, result.out_dir / "loss.png")
+    draw_parameters(history, result.out_dir / "parameters.png")
+    iterations = parse_iterations(plot_iterations, [r.iteration for r in history.iterations])
+    moving = observation.particle_type != PARTICLE_TYPE_KINEMATIC
+    draw_deposits(history, observation.positions[-1], observation.material_id, moving, iterations,
+                  result.out_dir / "deposit.png")
+
+
+def _write_starts(inversion: InversionResult, out_dir: Path) -> None:
+    free = inversion.spec.free
+    rows = [
+        {"start": k, "folder": r.out_dir.name, "initial": r.start.tolist(), "values": r.values.tolist(),
+         "loss": r.loss, "iterations": r.iterations, "evaluations": r.evaluations, "message": r.message}
+        for k, r in enumerate(inversion.starts)
+    ]
+    summary = {"parameters": [p.name for p in free], "starts": rows, "spread": inversion.spread}
+    (out_dir / "starts.json").write_text(json.dumps(summary, indent=1))
+    header = ["start", "loss (m^2)", "iterations"] + [f"initial {p.name} ({p.unit})" for p in free]
+    header += [f"{p.name} ({p.unit})" for p in free]
+    lines = [",".join(header)]
+    for row in rows:
+        cells = [row["start"], repr(row["loss"]), row["iterations"], *map(repr, row["initial"]), *map(repr, row["values"])]
+        lines.append(",".join(str(c) for c in cells))
+    (out_dir / "starts.csv").write_text("\n".join(lines) + "\n")
+    draw_starts(inversion.starts, out_dir / "starts.png")
+
+
+def summary_lines(inversion: InversionResult) -> list[str]:
+    """The final parameters with their bounds (best start), then the spread over starts."""
+    best = inversion.best
+    lines = [f"final loss {best.loss:.4g} m^2 after {best.iterations} iterations ({best.message})"]
+    for p, v in zip(inversion.spec.free, best.values):
+        lines.append(f"  {p.name:<32} = {v:10.4g} {p.unit:<8} bounds [{p.lower:g}, {p.upper:g}]")
+    if len(inversion.starts) > 1:
+        lines.append(f"spread over {len(inversion.starts)} starts (min .. max, std, range / bound width):")
+        for row in inversion.spread:
+            lines.append(
+                f"  {row['name']:<32} {row['min']:.4g} .. {row['max']:.4g} {row['unit']}, "
+                f"std {row['std']:.3g}, {100 * row['range_of_bounds']:.1f} % of bounds"
+            )
+        losses = np.array([r.loss for r in inversion.starts])
+        lines.append(f"  final losses {losses.min():.4g} .. {losses.max():.4g} m^2")
+    return lines
