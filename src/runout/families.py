@@ -1,0 +1,400 @@
+"""Random scene families for training data (paper section "Datasets", Table A.1).
+
+Families: (a) square blocks thrown over uneven ground, (b) steep three-layer slopes,
+(c) gentle three-layer slopes, (d) zoned dams on a foundation, and granular column
+collapses. Two stages: `base` (phi 10-40 deg, c = 0, 300 x 152 m, families a-d) and
+`finetune` (phi 3-35 deg, c 10-60 kPa, 400 x 152 m, families b-d and columns).
+
+Every vertex, size, velocity and property is drawn uniformly from its range
+(`vertex_ranges`). A draw whose layers would cross, overhang or be thinner than
+MIN_THICKNESS is redrawn whole (rejection sampling), so the accepted scenes are uniform
+over the valid part of the ranges and every value stays inside its range. Geometry reading
+(the paper's figure is missing) is explained in docs/datasets.md. Units: m, m/s, degrees, kPa.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from runout.scene import Domain, Material, Region, Scene, TimeSpec, polygon_area, polygon_self_intersects
+
+DOMAIN_HEIGHT = 152.0  # m, both stages
+GROUND_TOP = 4.0  # m, top of the fixed ground strip under the layered slopes (b, c)
+MIN_THICKNESS = 4.0  # m, thinnest layer or gap allowed (two point spacings at 4 m cells)
+HEADROOM = 4.0  # m, free space kept under the domain's top wall
+BLOCK_CLEARANCE = 2.0  # m, gap between a block and the ground or another block
+MAX_DRAWS = 10_000  # rejection-sampling attempts before giving up (never reached in practice)
+
+SOIL_E = 40.0  # MPa (paper Table 1)
+GROUND_E = 50.0  # MPa, linear-elastic ground and foundation
+POISSON = 0.3
+DENSITY = 1800.0  # kg/m^3
+
+FAMILIES = ("a", "b", "c", "d", "column")
+FAMILY_TITLES = {
+    "a": "blocks over uneven ground",
+    "b": "steep three-layer slope",
+    "c": "gentle three-layer slope",
+    "d": "zoned dam on a foundation",
+    "column": "column collapse",
+}
+
+
+@dataclass(frozen=True)
+class Stage:
+    name: str
+    stage_id: int  # part of every scene's random seed
+    width: float  # m, domain width
+    friction_range: tuple[float, float]  # degrees
+    cohesion_range: tuple[float, float] | None  # kPa; None = cohesionless
+    mix: dict[str, int]  # family -> relative share of the dataset
+    feature_width: int  # GNS material features: 1 = [tan phi], 2 = [tan phi, c / 100 kPa]
+
+
+STAGES = {
+    "base": Stage("base", 0, 300.0, (10.0, 40.0), None, {"a": 500, "b": 500, "c": 500, "d": 500}, 1),
+    "finetune": Stage(
+        "finetune", 1, 400.0, (3.0, 35.0), (10.0, 60.0), {"b": 250, "c": 250, "d": 500, "column": 27}, 2
+    ),
+}
+
+Range = tuple[float, float]
+
+
+def vertex_ranges(family: str, width: float) -> dict[str, tuple[Range, Range]]:
+    """Table A.1 as {vertex label: ((x_lo, x_hi), (y_lo, y_hi))} in metres for a domain of
+    `width`. For the dam (d) the y of vertices [8]-[11] is the height above the foundation
+    surface at that x, and [0]-[3] lie on the foundation surface."""
+    w = width
+    tables = {
+        "a": {"[0]": ((0, 0), (4, 40)), "[1]": ((10, 290), (4, 40)), "[2]": ((10, 290), (4, 40)),
+              "[3]": ((10, 290), (4, 40)), "[4]": ((w, w), (4, 40))},
+        "b": {"[0]": ((0, 0), (4, 4)), "[1]": ((125, 193), (4, 4)), "[2]": ((137.5, 225), (4, 4)),
+              "[3]": ((150, 225), (4, 4)), "[4]": ((0, 0), (12.5, 50)), "[5]": ((100, 100), (12.5, 50)),
+              "[6]": ((0, 0), (25, 75)), "[7]": ((100, 100), (25, 37.5)), "[8]": ((0, 0), (50, 100)),
+              "[9]": ((100, 100), (50, 100))},
+        "c": {"[0]": ((0, 0), (4, 50)), "[1]": ((60, 100), (4, 4)), "[2]": ((90, 140), (4, 4)),
+              "[3]": ((90, 150), (4, 4)), "[4]": ((0, 0), (30, 100)), "[5]": ((10, 80), (70, 100)),
+              "[6]": ((0, 0), (120, 140)), "[7]": ((10, 80), (80, 120))},
+        "d": {"[0]": ((0, 110), (0, 0)), "[1]": ((0, 120), (0, 0)), "[2]": ((180, w), (0, 0)),
+              "[3]": ((210, w), (0, 0)), "[4]": ((0, 0), (4, 40)), "[5]": ((10, w - 10), (4, 40)),
+              "[6]": ((10, w - 10), (4, 40)), "[7]": ((w, w), (4, 40)), "[8]": ((40, 170), (30, 60)),
+              "[9]": ((130, 260), (30, 60)), "[10]": ((30, 160), (50, 190)), "[11]": ((140, 270), (50, 90))},
+        "column": {"size": ((50, 100), (50, 100))},  # (width, height) of the column
+    }
+    return {k: ((float(x[0]), float(x[1])), (float(y[0]), float(y[1]))) for k, (x, y) in tables[family].items()}
+
+
+BLOCK_SIDE = (40.0, 90.0)  # m
+BLOCK_SPEED = (-15.0, 15.0)  # m/s, each velocity component
+BLOCK_COUNT = (1, 3)
+
+
+@dataclass(frozen=True)
+class FamilySample:
+    """A sampled scene with the table vertices it was built from (for checks and pictures)."""
+
+    family: str
+    scene: Scene
+    vertices: dict[str, tuple[float, float]]  # label -> (x, y) in the frame of vertex_ranges
+
+
+# ----------------------------------------------------------------------------- sampling
+
+
+def sample(stage: Stage, family: str, rng: np.random.Generator, name: str = "scene") -> FamilySample:
+    """Draw one scene of `family` for `stage`."""
+    if family not in stage.mix:
+        raise ValueError(f"family {family!r} is not part of stage {stage.name!r}")
+    draw = {"a": _blocks, "b": _steep_slope, "c": _gentle_slope, "d": _dam, "column": _column}[family]
+    for _ in range(MAX_DRAWS):
+        drawn = draw(stage, rng)
+        if drawn is not None:
+            vertices, soil, fixed = drawn
+            return FamilySample(family, _scene(stage, soil, fixed, rng, name), vertices)
+    raise RuntimeError(f"family {family}: no valid draw in {MAX_DRAWS} attempts")
+
+
+def sample_for_index(stage: Stage, seed: int, k: int, family: str) -> FamilySample:
+    """Scene k of a dataset: its random numbers depend only on (seed, stage, k)."""
+    rng = np.random.default_rng([seed, stage.stage_id, k])
+    return sample(stage, family, rng, name=f"scene_{k:05d}")
+
+
+def family_sequence(stage: Stage, count: int) -> list[str]:
+    """Families of scenes 0..count-1: smooth weighted round-robin over stage.mix, so every
+    prefix holds each family in proportion to its share (base: a b c d a b c d ...)."""
+    credit = {f: 0 for f in stage.mix}
+    total = sum(stage.mix.values())
+    out = []
+    for _ in range(count):
+        for f, w in stage.mix.items():
+            credit[f] += w
+        best = max(stage.mix, key=lambda f: credit[f])
+        credit[best] -= total
+        out.append(best)
+    return out
+
+
+def _uniform(rng: np.random.Generator, r: Range) -> float:
+    return float(rng.uniform(r[0], r[1]))
+
+
+def _draw_vertices(rng, family: str, width: float, labels=None) -> dict[str, tuple[float, float]]:
+    table = vertex_ranges(family, width)
+    return {k: (_uniform(rng, xr), _uniform(rng, yr)) for k, (xr, yr) in table.items() if labels is None or k in labels}
+
+
+def _scene(stage: Stage, soil: list[Region], fixed: list[Region], rng, name: str) -> Scene:
+    """Give each soil region its own random material; fixed regions share the elastic ground."""
+    materials = {}
+    regions = []
+    if fixed:
+        materials["ground"] = Material(
+            "ground", model="elastic", friction_angle=0.0, cohesion=0.0, youngs_modulus=GROUND_E,
+            poisson_ratio=POISSON, density=DENSITY, k0=POISSON / (1 - POISSON),
+        )
+        regions += [replace(r, material="ground", fixed=True) for r in fixed]
+    for k, r in enumerate(soil, start=1):
+        name_k = f"soil_{k}"
+        phi = _uniform(rng, stage.friction_range)
+        c = _uniform(rng, stage.cohesion_range) if stage.cohesion_range else 0.0
+        materials[name_k] = Material(
+            name_k, friction_angle=phi, cohesion=c, youngs_modulus=SOIL_E, poisson_ratio=POISSON, density=DENSITY
+        )
+        regions.append(replace(r, material=name_k))
+    domain = Domain(width=stage.width, height=DOMAIN_HEIGHT)
+    return Scene(domain, materials, tuple(regions), TimeSpec(), name)
+
+
+def _region(points) -> Region:
+    return Region(material="", polygon=tuple((float(x), float(y)) for x, y in points))
+
+
+# ----------------------------------------------------------------------------- (a) blocks
+
+
+def _blocks(stage: Stage, rng):
+    v = _draw_vertices(rng, "a", stage.width)
+    xs = sorted(v[k][0] for k in ("[1]", "[2]", "[3]"))
+    for k, x in zip(("[1]", "[2]", "[3]"), xs):
+        v[k] = (x, v[k][1])
+    ground = [v[k] for k in ("[0]", "[1]", "[2]", "[3]", "[4]")]
+    boxes = []
+    for _ in range(int(rng.integers(BLOCK_COUNT[0], BLOCK_COUNT[1] + 1))):
+        box = _place_block(stage.width, ground, boxes, rng)
+        if box is None:
+            return None
+        boxes.append(box)
+    blocks = [
+        replace(_region([(x, y), (x + s, y), (x + s, y + s), (x, y + s)]), velocity=vel)
+        for x, y, s, vel in boxes
+    ]
+    ground_poly = [(0.0, 0.0), (stage.width, 0.0)] + ground[::-1]
+    return v, blocks, [_region(ground_poly)]
+
+
+def _place_block(width: float, ground, boxes, rng):
+    """One square block (x, y, side, velocity) above the ground, clear of the other blocks."""
+    side = _uniform(rng, BLOCK_SIDE)
+    vel = (_uniform(rng, BLOCK_SPEED), _uniform(rng, BLOCK_SPEED))
+    x = _uniform(rng, (0.0, width - side))
+    floor = _ground_max(ground, x, x + side) + BLOCK_CLEARANCE
+    top = DOMAIN_HEIGHT - HEADROOM - side
+    if floor > top:
+        return None
+    y = _uniform(rng, (floor, top))
+    for bx, by, bs, _ in boxes:
+        apart_x = x >= bx + bs + BLOCK_CLEARANCE or bx >= x + side + BLOCK_CLEARANCE
+        apart_y = y >= by + bs + BLOCK_CLEARANCE or by >= y + side + BLOCK_CLEARANCE
+        if not (apart_x or apart_y):
+            return None
+    return x, y, side, vel
+
+
+def _ground_max(polyline, x0: float, x1: float) -> float:
+    """Highest ground elevation (m) over [x0, x1] of an x-sorted polyline."""
+    p = np.asarray(polyline)
+    inner = p[(p[:, 0] > x0) & (p[:, 0] < x1), 1]
+    ends = np.interp([x0, x1], p[:, 0], p[:, 1])
+    return float(max(ends.max(), inner.max(initial=-np.inf)))
+
+
+# ----------------------------------------------------------------------------- (b), (c) layers
+
+
+def _steep_slope(stage: Stage, rng):
+    v = _draw_vertices(rng, "b", stage.width)
+    surfaces = [[v["[4]"], v["[5]"], v["[1]"]], [v["[6]"], v["[7]"], v["[2]"]], [v["[8]"], v["[9]"], v["[3]"]]]
+    return _layered(v, surfaces, stage.width)
+
+
+def _gentle_slope(stage: Stage, rng):
+    v = _draw_vertices(rng, "c", stage.width)
+    surfaces = [[v["[0]"], v["[1]"]], [v["[4]"], v["[5]"], v["[2]"]], [v["[6]"], v["[7]"], v["[3]"]]]
+    return _layered(v, surfaces, stage.width)
+
+
+def _layered(v, surfaces, width: float):
+    """Stack layers on a fixed ground strip: layer k lies between surface k-1 (or the base) and
+    surface k; each surface runs from the left wall to its own toe on the base, further out
+    than the toe below, so every layer drapes over the one beneath it."""
+    if not _rests_on_base(surfaces[0]):
+        return None
+    for lower, upper in zip(surfaces, surfaces[1:]):
+        if not _drapes_over(lower, upper):
+            return None
+    layers = [_region([(0.0, GROUND_TOP)] + surfaces[0][::-1])]
+    layers += [_region(lower + upper[::-1]) for lower, upper in zip(surfaces, surfaces[1:])]
+    ground = _region([(0.0, 0.0), (width, 0.0), (width, GROUND_TOP), (0.0, GROUND_TOP)])
+    return v, layers, [ground]
+
+
+def _rests_on_base(surface) -> bool:
+    """The bottom layer: an x-monotone surface at least MIN_THICKNESS above the ground strip
+    everywhere but at its toe, where it tapers onto the base."""
+    s = np.asarray(surface)
+    return bool(np.all(np.diff(s[:, 0]) > 0) and s[:-1, 1].min() - GROUND_TOP >= MIN_THICKNESS)
+
+
+def _drapes_over(lower, upper) -> bool:
+    """upper is x-monotone, ends on the base past lower's toe, stays above lower everywhere
+    and at least MIN_THICKNESS away from it."""
+    lo, up = np.asarray(lower), np.asarray(upper)
+    if np.any(np.diff(up[:, 0]) <= 0) or up[-1, 0] < lo[-1, 0] + MIN_THICKNESS:
+        return False
+    xs = np.union1d(lo[:, 0], up[:, 0])
+    xs = xs[xs <= lo[-1, 0]]
+    if np.any(np.interp(xs, up[:, 0], up[:, 1]) <= np.interp(xs, lo[:, 0], lo[:, 1])):
+        return False
+    return min(_chain_distance(up, lo), _chain_distance(lo, up)) >= MIN_THICKNESS
+
+
+def _chain_distance(points: np.ndarray, chain: np.ndarray) -> float:
+    """Smallest distance (m) from any of `points` to the polyline `chain`."""
+    a, b = chain[:-1], chain[1:]
+    ab = b - a
+    rel = points[:, None, :] - a[None, :, :]
+    t = np.clip(np.einsum("psd,sd->ps", rel, ab) / np.einsum("sd,sd->s", ab, ab), 0.0, 1.0)
+    nearest = a[None] + t[..., None] * ab[None]
+    return float(np.linalg.norm(points[:, None, :] - nearest, axis=2).min())
+
+
+# ----------------------------------------------------------------------------- (d) dam
+
+
+def _dam(stage: Stage, rng):
+    """A zoned dam sitting on a fixed foundation. Base points [0] < [1] < [2] < [3] lie on the
+    foundation surface; [8], [9] are the core's mid-height corners, [10], [11] the crest
+    corners (heights above the foundation). Zones: upstream shell [0,1,8,10], lower core
+    [1,2,9,8], upper core [8,9,11,10], downstream shell [2,3,11,9]."""
+    w = stage.width
+    v = _draw_vertices(rng, "d", w)
+    fx = sorted([v["[5]"][0], v["[6]"][0]])
+    v["[5]"], v["[6]"] = (fx[0], v["[5]"][1]), (fx[1], v["[6]"][1])
+    found = np.array([v["[4]"], v["[5]"], v["[6]"], v["[7]"]])
+    x0, x1, x2, x3 = (v[k][0] for k in ("[0]", "[1]", "[2]", "[3]"))
+    x8, x9, x10, x11 = (v[k][0] for k in ("[8]", "[9]", "[10]", "[11]"))
+    ordered = (
+        x1 - x0 >= MIN_THICKNESS and x2 - x1 >= MIN_THICKNESS and x3 - x2 >= MIN_THICKNESS
+        and x0 <= x10 < x11 <= x3 and x8 < x9
+    )
+    if not ordered:
+        return None
+
+    def lift(label):  # table (x, height above foundation) -> absolute (x, y)
+        x, h = v[label]
+        return (x, float(np.interp(x, found[:, 0], found[:, 1])) + h)
+
+    p8, p9, p10, p11 = (lift(k) for k in ("[8]", "[9]", "[10]", "[11]"))
+    if max(p10[1], p11[1]) > DOMAIN_HEIGHT - HEADROOM:
+        return None
+    b0, b1, b2, b3 = (lift(k) for k in ("[0]", "[1]", "[2]", "[3]"))
+    zones = [
+        (_along(found, b0, b1) + [p8, p10], [b0, b1, p8, p10]),
+        (_along(found, b1, b2) + [p9, p8], [b1, b2, p9, p8]),
+        ([p8, p9, p11, p10], [p8, p9, p11, p10]),
+        (_along(found, b2, b3) + [p11, p9], [b2, b3, p11, p9]),
+    ]
+    outline = (_along(found, b0, b3) + [p11, p10], [b0, b3, p11, p10])
+    for poly, quad in zones + [outline]:
+        p = np.asarray(poly)
+        if polygon_area(p) <= 0 or polygon_self_intersects(p) or _thinnest(np.asarray(quad)) < MIN_THICKNESS:
+            return None
+    inner = found[(found[:, 0] > x0) & (found[:, 0] < x3)]
+    edges = [(b0, p10), (b1, p8), (p8, p10), (p8, p9), (b2, p9), (p9, p11), (p10, p11), (b3, p11)]
+    if len(inner) and min(_chain_distance(inner, np.array(e)) for e in edges) < MIN_THICKNESS:
+        return None
+    foundation = [(0.0, 0.0), (w, 0.0)] + [tuple(p) for p in found[::-1]]
+    return v, [_region(poly) for poly, _ in zones], [_region(foundation)]
+
+
+def _along(found: np.ndarray, a, b) -> list[tuple[float, float]]:
+    """The foundation surface from point a to point b (both on it), with its vertices between."""
+    between = found[(found[:, 0] > a[0]) & (found[:, 0] < b[0])]
+    return [a] + [(float(x), float(y)) for x, y in between] + [b]
+
+
+def _thinnest(quad: np.ndarray) -> float:
+    """Smallest distance (m) from a vertex to an edge not touching it: how thin the polygon gets."""
+    n = len(quad)
+    best = np.inf
+    for i in range(n):
+        for j in range(n):
+            if j != i and (j + 1) % n != i:
+                best = min(best, _chain_distance(quad[i : i + 1], quad[[j, (j + 1) % n]]))
+    return best
+
+
+# ----------------------------------------------------------------------------- column
+
+
+def _column(stage: Stage, rng):
+    v = _draw_vertices(rng, "column", stage.width)
+    w, h = v["size"]
+    return v, [_region([(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)])], []
+
+
+# ----------------------------------------------------------------------------- pictures
+
+
+def draw_grid(samples: list[FamilySample], path: str | Path, columns: int = 4) -> Path:
+    """Draw scenes in a grid (fixed regions grey, each soil material its own colour, block
+    velocities as arrows) and save the picture to `path`."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.patches import Polygon
+
+    rows = -(-len(samples) // columns)
+    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 2.6 * rows), squeeze=False)
+    colours = plt.get_cmap("tab10").colors
+    for ax, s in zip(axes.ravel(), samples):
+        d = s.scene.domain
+        names = s.scene.material_names
+        for r in s.scene.regions:
+            colour = "0.6" if r.fixed else colours[names.index(r.material) % 10]
+            ax.add_patch(Polygon(r.polygon, closed=True, facecolor=colour, edgecolor="k", linewidth=0.5))
+            if r.velocity != (0.0, 0.0):
+                cx, cy = np.mean(r.polygon, axis=0)
+                ax.annotate("", (cx + 2 * r.velocity[0], cy + 2 * r.velocity[1]), (cx, cy),
+                            arrowprops={"arrowstyle": "->", "color": "k"})
+        soils = [m for m in s.scene.materials.values() if m.model != "elastic"]
+        label = ", ".join(f"{m.friction_angle:.0f}°/{m.cohesion:.0f}" for m in soils)
+        ax.set_title(f"{s.scene.name} ({s.family}): φ/c {label}", fontsize=7)
+        ax.set_xlim(0, d.width)
+        ax.set_ylim(0, d.height)
+        ax.set_aspect("equal")
+        ax.tick_params(labelsize=6)
+    for ax in axes.ravel()[len(samples):]:
+        ax.axis("off")
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
