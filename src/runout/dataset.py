@@ -9,11 +9,14 @@ a = v_t - v_{t-1} (m per frame, m per frame^2), pooled over every point and fram
 from __future__ import annotations
 
 import json
+import zipfile
+from collections.abc import Iterable, Iterator
 from pathlib import Path
 
 import numpy as np
 
 from runout.errors import InputError
+from runout.scene import PARTICLE_TYPE_KINEMATIC
 from runout.trajectory import RADIUS_PER_SPACING, Trajectory, gns_tuple
 
 REQUIRED_METADATA = (
@@ -21,30 +24,50 @@ REQUIRED_METADATA = (
     "vel_mean", "vel_std", "acc_mean", "acc_std",
 )
 
+SPLITS = ("train", "valid", "test")
+
 Simulation = tuple[np.ndarray, np.ndarray, np.ndarray | None]
 
 
 def read_simulations(path: str | Path) -> list[Simulation]:
-    """Read every simulation of a split file, in either layout, checking shapes and NaNs."""
+    """Read every simulation of a split file, in either layout, checking shapes, NaNs and
+    that all simulations have the same number of material features."""
+    sims = list(iter_simulations(path))
+    if not sims:
+        raise InputError(f"{path}: holds no simulations.")
+    return sims
+
+
+def iter_simulations(path: str | Path) -> Iterator[Simulation]:
+    """Yield the simulations of a split file one at a time (the dict layout is read lazily,
+    so a large file never sits in memory whole), with the checks of read_simulations."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such dataset file.")
     try:
         archive = np.load(path, allow_pickle=True)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, zipfile.BadZipFile) as exc:
         raise InputError(f"{path}: not a readable npz file ({exc}).") from None
     with archive:
         if "gns_data" in archive.files:
-            items = list(archive["gns_data"])
+            items = iter(archive["gns_data"])
         else:
-            keys = sorted(archive.files, key=_simulation_order)
-            items = [archive[k] for k in keys]
-    sims = []
-    for k, item in enumerate(items):
-        sims.append(_check_simulation(path, k, tuple(item)))
-    if not sims:
-        raise InputError(f"{path}: holds no simulations.")
-    return sims
+            items = (archive[key] for key in sorted(archive.files, key=_simulation_order))
+        width = None
+        for k, item in enumerate(items):
+            sim = _check_simulation(path, k, tuple(item))
+            w = _material_width(sim)
+            if width is None:
+                width = w
+            elif w != width:
+                raise InputError(
+                    f"{path}: simulation {k} has {w} material features but simulation 0 has {width}."
+                )
+            yield sim
+
+
+def _material_width(sim: Simulation) -> int:
+    return 0 if sim[2] is None else int(sim[2].shape[1])
 
 
 def _simulation_order(key: str):
@@ -85,84 +108,108 @@ def _check_simulation(path: Path, k: int, item: tuple) -> Simulation:
     return positions.astype(np.float32), ptype.astype(np.int64), material
 
 
-def write_simulations(path: str | Path, sims: list[Simulation], layout: str = "dict") -> None:
-    """Write simulations atomically in the dict layout (default) or the gns_data layout."""
-    path = Path(path)
-    tuples = []
-    for positions, ptype, material in sims:
-        t = np.empty(3 if material is not None else 2, dtype=object)
-        t[0] = np.asarray(positions, dtype=np.float32)
-        t[1] = np.asarray(ptype, dtype=np.int64)
-        if material is not None:
-            t[2] = np.asarray(material, dtype=np.float32)
-        tuples.append(t)
-    tmp = path.with_name(path.stem + ".tmp.npz")
-    if layout == "dict":
-        np.savez_compressed(tmp, **{f"simulation_{k}": t for k, t in enumerate(tuples)})
-    elif layout == "gns_data":
-        arr = np.empty(len(tuples), dtype=object)
-        for k, t in enumerate(tuples):
-            arr[k] = t
-        np.savez_compressed(tmp, gns_data=arr)
-    else:
+def write_simulations(
+    path: str | Path, sims: Iterable[Simulation], layout: str = "dict", compress: bool = True
+) -> None:
+    """Write simulations atomically in the dict layout (default) or the gns_data layout.
+    The dict layout streams one simulation at a time; compress=False stores the arrays
+    uncompressed (float trajectories barely compress, and storing is many times faster)."""
+    if layout not in ("dict", "gns_data"):
         raise ValueError(f"unknown layout {layout!r}; use 'dict' or 'gns_data'")
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    tuples = (_object_tuple(sim) for sim in sims)
+    method = zipfile.ZIP_DEFLATED if compress else zipfile.ZIP_STORED
+    with zipfile.ZipFile(tmp, "w", compression=method, allowZip64=True) as archive:
+        if layout == "dict":
+            for k, t in enumerate(tuples):
+                _write_array(archive, f"simulation_{k}", t)
+        else:
+            tuples = list(tuples)
+            arr = np.empty(len(tuples), dtype=object)
+            for k, t in enumerate(tuples):
+                arr[k] = t
+            _write_array(archive, "gns_data", arr)
     tmp.replace(path)
+
+
+def _object_tuple(sim: Simulation) -> np.ndarray:
+    positions, ptype, material = sim
+    t = np.empty(3 if material is not None else 2, dtype=object)
+    t[0] = np.asarray(positions, dtype=np.float32)
+    t[1] = np.asarray(ptype, dtype=np.int64)
+    if material is not None:
+        t[2] = np.asarray(material, dtype=np.float32)
+    return t
+
+
+def _write_array(archive: zipfile.ZipFile, key: str, arr: np.ndarray) -> None:
+    with archive.open(f"{key}.npy", "w", force_zip64=True) as f:
+        np.lib.format.write_array(f, arr, allow_pickle=True)
 
 
 def trajectories_to_simulations(trajs: list[Trajectory], feature_width: int) -> list[Simulation]:
     return [tuple(gns_tuple(t, feature_width)) for t in trajs]
 
 
+class Moments:
+    """Running GNS statistics of positions [T, N, 2]: per-frame velocities v = x_t - x_{t-1}
+    and accelerations a = v_t - v_{t-1} pooled over every point and frame (float64 sums)."""
+
+    def __init__(self) -> None:
+        self.n_v = self.n_a = 0
+        self.s_v, self.ss_v = np.zeros(2), np.zeros(2)
+        self.s_a, self.ss_a = np.zeros(2), np.zeros(2)
+        self.lo, self.hi = np.full(2, np.inf), np.full(2, -np.inf)
+        self.sequence_length = 0
+
+    def add(self, positions: np.ndarray) -> None:
+        pos = np.asarray(positions, dtype=np.float64)
+        v = pos[1:] - pos[:-1]
+        a = v[1:] - v[:-1]
+        self.n_v += v.shape[0] * v.shape[1]
+        self.n_a += a.shape[0] * a.shape[1]
+        self.s_v += v.sum(axis=(0, 1))
+        self.ss_v += (v**2).sum(axis=(0, 1))
+        self.s_a += a.sum(axis=(0, 1))
+        self.ss_a += (a**2).sum(axis=(0, 1))
+        self.lo = np.minimum(self.lo, pos.min(axis=(0, 1)))
+        self.hi = np.maximum(self.hi, pos.max(axis=(0, 1)))
+        self.sequence_length = max(self.sequence_length, pos.shape[0])
+
+    def metadata(self, bounds=None, radius: float | None = None, dt: float | None = None) -> dict:
+        """The GNS metadata keys; bounds default to the range the positions covered."""
+        vel_mean = self.s_v / max(self.n_v, 1)
+        acc_mean = self.s_a / max(self.n_a, 1)
+        vel_std = np.sqrt(np.maximum(self.ss_v / max(self.n_v, 1) - vel_mean**2, 0.0))
+        acc_std = np.sqrt(np.maximum(self.ss_a / max(self.n_a, 1) - acc_mean**2, 0.0))
+        if bounds is None:
+            bounds = np.stack([self.lo, self.hi], axis=1)
+        return {
+            "bounds": np.asarray(bounds, dtype=float).tolist(),
+            "sequence_length": int(self.sequence_length),
+            "default_connectivity_radius": float(RADIUS_PER_SPACING * 2.0 if radius is None else radius),
+            "dim": 2,
+            "dt": float(0.0375 if dt is None else dt),
+            "vel_mean": vel_mean.tolist(),
+            "vel_std": vel_std.tolist(),
+            "acc_mean": acc_mean.tolist(),
+            "acc_std": acc_std.tolist(),
+        }
+
+
 def statistics(sources, radius: float | None = None) -> dict:
     """GNS metadata statistics pooled over every point and frame of the given trajectories
     or (positions, ...) simulations, in per-frame units; float64 accumulation."""
-    n_v = n_a = 0
-    s_v = np.zeros(2)
-    ss_v = np.zeros(2)
-    s_a = np.zeros(2)
-    ss_a = np.zeros(2)
-    lo = np.full(2, np.inf)
-    hi = np.full(2, -np.inf)
-    seq_len = 0
-    dt = None
-    bounds = None
+    moments = Moments()
+    dt = bounds = None
     for src in sources:
         if isinstance(src, Trajectory):
-            pos = src.positions.astype(np.float64)
-            dt = src.frame_dt
-            bounds = src.bounds
+            moments.add(src.positions)
+            dt, bounds = src.frame_dt, src.bounds
         else:
-            pos = np.asarray(src[0], dtype=np.float64)
-        v = pos[1:] - pos[:-1]
-        a = v[1:] - v[:-1]
-        n_v += v.shape[0] * v.shape[1]
-        n_a += a.shape[0] * a.shape[1]
-        s_v += v.sum(axis=(0, 1))
-        ss_v += (v**2).sum(axis=(0, 1))
-        s_a += a.sum(axis=(0, 1))
-        ss_a += (a**2).sum(axis=(0, 1))
-        lo = np.minimum(lo, pos.min(axis=(0, 1)))
-        hi = np.maximum(hi, pos.max(axis=(0, 1)))
-        seq_len = max(seq_len, pos.shape[0])
-    vel_mean = s_v / max(n_v, 1)
-    acc_mean = s_a / max(n_a, 1)
-    vel_std = np.sqrt(np.maximum(ss_v / max(n_v, 1) - vel_mean**2, 0.0))
-    acc_std = np.sqrt(np.maximum(ss_a / max(n_a, 1) - acc_mean**2, 0.0))
-    if bounds is None:
-        bounds = np.stack([lo, hi], axis=1)
-    if radius is None:
-        radius = RADIUS_PER_SPACING * 2.0
-    return {
-        "bounds": np.asarray(bounds, dtype=float).tolist(),
-        "sequence_length": int(seq_len),
-        "default_connectivity_radius": float(radius),
-        "dim": 2,
-        "dt": float(dt) if dt is not None else 0.0375,
-        "vel_mean": vel_mean.tolist(),
-        "vel_std": vel_std.tolist(),
-        "acc_mean": acc_mean.tolist(),
-        "acc_std": acc_std.tolist(),
-    }
+            moments.add(src[0])
+    return moments.metadata(bounds, radius, dt)
 
 
 def read_metadata(path: str | Path, mode: str = "train") -> dict:
@@ -189,3 +236,90 @@ def write_metadata(path: str | Path, meta: dict) -> None:
     tmp = path.with_suffix(".tmp")
     tmp.write_text(json.dumps(meta, indent=2))
     tmp.replace(path)
+
+
+# ----------------------------------------------------------------------------- whole datasets
+
+
+def summarize(path: str | Path) -> dict:
+    """Counts, frames, points, position and feature ranges of a dataset directory (its
+    metadata.json and every split present) or of one split file. Raises InputError when a
+    file is malformed or the splits disagree on the number of material features."""
+    path = Path(path)
+    if path.is_file():
+        return {"splits": {path.stem: _summarize_split(path)}}
+    if not path.is_dir():
+        raise InputError(f"{path}: no such dataset directory or file.")
+    files = {name: path / f"{name}.npz" for name in SPLITS if (path / f"{name}.npz").is_file()}
+    if not files:
+        raise InputError(f"{path}: holds none of {', '.join(f'{n}.npz' for n in SPLITS)}.")
+    meta = read_metadata(path)
+    splits = {name: _summarize_split(f) for name, f in files.items()}
+    widths = {name: s["material_width"] for name, s in splits.items()}
+    if "material_features" in meta:
+        widths["metadata.json"] = len(meta["material_features"])
+    first = next(iter(widths))
+    for name, w in widths.items():
+        if w != widths[first]:
+            raise InputError(
+                f"{path}: {name} has {w} material features but {first} has {widths[first]}; "
+                "every split must use the same material features."
+            )
+    return {"metadata": meta, "splits": splits}
+
+
+def _summarize_split(path: Path) -> dict:
+    frames, points, kinematic = [], [], 0
+    lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
+    f_lo = f_hi = None
+    width = 0
+    for positions, ptype, material in iter_simulations(path):
+        frames.append(positions.shape[0])
+        points.append(positions.shape[1])
+        kinematic += int((ptype == PARTICLE_TYPE_KINEMATIC).sum())
+        lo = np.minimum(lo, positions.min(axis=(0, 1)))
+        hi = np.maximum(hi, positions.max(axis=(0, 1)))
+        width = 0 if material is None else material.shape[1]
+        if material is not None:
+            f_lo = material.min(axis=0) if f_lo is None else np.minimum(f_lo, material.min(axis=0))
+            f_hi = material.max(axis=0) if f_hi is None else np.maximum(f_hi, material.max(axis=0))
+    if not frames:
+        raise InputError(f"{path}: holds no simulations.")
+    return {
+        "simulations": len(frames),
+        "frames": [min(frames), max(frames)],
+        "points": [min(points), max(points)],
+        "points_total": int(sum(points)),
+        "kinematic_points": kinematic,
+        "position_range": np.stack([lo, hi], axis=1).tolist(),  # [[x_lo, x_hi], [y_lo, y_hi]] m
+        "material_width": width,
+        "material_range": None if f_lo is None else np.stack([f_lo, f_hi], axis=1).tolist(),
+    }
+
+
+def format_summary(path: str | Path, summary: dict) -> str:
+    """The summary as the text `runout inspect` prints."""
+    lines = [f"dataset {path}"]
+    meta = summary.get("metadata")
+    for name, s in summary["splits"].items():
+        (x0, x1), (y0, y1) = s["position_range"]
+        lines.append(
+            f"  {name}: {s['simulations']} simulations, frames {s['frames'][0]}-{s['frames'][1]}, "
+            f"points {s['points'][0]}-{s['points'][1]} ({s['kinematic_points']} of {s['points_total']} kinematic), "
+            f"x {x0:.1f}..{x1:.1f} m, y {y0:.1f}..{y1:.1f} m"
+        )
+        if s["material_range"] is not None:
+            ranges = ", ".join(f"{lo:.3f}..{hi:.3f}" for lo, hi in s["material_range"])
+            names = meta.get("material_features", []) if meta else []
+            lines.append(f"    material features {names or s['material_width']}: {ranges}")
+    if meta:
+        for key in ("stage", "seed", "count", "code_version"):
+            if key in meta:
+                lines.append(f"  {key}: {meta[key]}")
+        if "ranges" in meta:
+            lines.append(f"  ranges: {json.dumps(meta['ranges'])}")
+        lines.append(f"  bounds {meta['bounds']} m, connectivity radius {meta['default_connectivity_radius']:g} m, "
+                     f"sequence length {meta['sequence_length']}")
+        for key in ("vel_mean", "vel_std", "acc_mean", "acc_std"):
+            lines.append(f"  {key}: [{', '.join(f'{v:.4e}' for v in meta[key])}] (per frame)")
+    return "\n".join(lines)

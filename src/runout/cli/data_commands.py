@@ -1,0 +1,93 @@
+"""`runout families`, `runout generate`, `runout merge` and `runout inspect`: training data."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import typer
+
+from runout.cli.app import app
+
+
+@app.command()
+def families(
+    family: str = typer.Option(..., "--family", help="a (blocks), b (steep slope), c (gentle slope), d (dam) or column."),
+    count: int = typer.Option(12, "--count", help="Scenes to draw."),
+    out: Path = typer.Option(Path("families.png"), "--out", help="PNG to write."),
+    stage: str = typer.Option(None, "--stage", help="base or finetune (default: base, or finetune for column)."),
+    seed: int = typer.Option(0, "--seed", help="Random seed."),
+    scenes: Path = typer.Option(None, "--scenes", help="Also write each scene as TOML into this directory."),
+) -> None:
+    """Draw a grid of random scenes of one family (paper Table A.1), to look at before generating."""
+    import numpy as np
+
+    from runout.errors import InputError
+    from runout.families import FAMILIES, STAGES, draw_grid, sample
+    from runout.scene import save_scene
+
+    if family not in FAMILIES:
+        raise InputError(f"--family {family!r} must be one of {', '.join(FAMILIES)}.")
+    stage = stage or ("finetune" if family == "column" else "base")
+    if stage not in STAGES:
+        raise InputError(f"--stage {stage!r} must be one of {', '.join(STAGES)}.")
+    if family not in STAGES[stage].mix:
+        raise InputError(f"--family {family} is not part of the {stage} stage (it has {', '.join(STAGES[stage].mix)}).")
+    if not 1 <= count <= 200:
+        raise InputError(f"--count {count} is outside the allowed range [1, 200].")
+    rng = np.random.default_rng([seed, STAGES[stage].stage_id, FAMILIES.index(family)])
+    samples = [sample(STAGES[stage], family, rng, name=f"{family}_{k:03d}") for k in range(count)]
+    draw_grid(samples, out)
+    if scenes is not None:
+        scenes.mkdir(parents=True, exist_ok=True)
+        for s in samples:
+            save_scene(s.scene, scenes / f"{s.scene.name}.toml")
+    typer.echo(f"wrote {out}" + (f" and {count} scene files in {scenes}" if scenes else ""))
+
+
+@app.command()
+def generate(
+    stage: str = typer.Option(..., "--stage", help="base (phi only, families a-d) or finetune (phi and c, b-d and columns)."),
+    count: int = typer.Option(..., "--count", help="Scenes in the dataset (paper: 2000 base, 1027 finetune)."),
+    out: Path = typer.Option(..., "--out", help="Dataset directory; rerun the same command to resume."),
+    seed: int = typer.Option(0, "--seed", help="Random seed; scene k depends only on (seed, stage, k)."),
+    device: str = typer.Option("cpu", "--device", help="cpu or cuda (under torchrun each rank takes cuda:LOCAL_RANK)."),
+    batch: int = typer.Option(16, "--batch", help="Scenes per MPM batch and per part file."),
+    shard: str = typer.Option(None, "--shard", help="i/n: run only batches j with j mod n = i (default: torchrun's RANK/WORLD_SIZE)."),
+    frames: int = typer.Option(480, "--frames", help="Output frames per scene, frame 0 included."),
+    cell_size: float = typer.Option(4.0, "--cell-size", hidden=True, help="Background cell size (m); coarse only for tests."),
+) -> None:
+    """Sample scenes, run them through the batched MPM and write train/valid/test.npz and
+    metadata.json (GNS layout). A killed run resumes where it stopped."""
+    from runout.generate import GenerateConfig, generate as run, parse_shard, shard_from_env
+
+    where = parse_shard(shard) if shard else shard_from_env(os.environ)
+    if device == "cuda" and "LOCAL_RANK" in os.environ:
+        device = f"cuda:{os.environ['LOCAL_RANK']}"
+    config = GenerateConfig(stage, count, seed, batch, frames, cell_size)
+    if run(config, out, shard=where, device=device):
+        typer.echo(f"wrote {out}/train.npz, valid.npz, test.npz, metadata.json")
+    else:
+        typer.echo(f"shard {where[0]}/{where[1]} done; join the shards with `runout merge DIR ... --out {out}`")
+
+
+@app.command()
+def merge(
+    dirs: list[Path] = typer.Argument(..., help="Shard directories of one `runout generate` run."),
+    out: Path = typer.Option(..., "--out", help="Dataset directory to write (may be one of the shards)."),
+) -> None:
+    """Join sharded generation runs into one dataset, identical to an unsharded run."""
+    from runout.generate import merge as join
+
+    join(dirs, out)
+    typer.echo(f"wrote {out}/train.npz, valid.npz, test.npz, metadata.json")
+
+
+@app.command()
+def inspect(
+    dataset: Path = typer.Argument(..., help="Dataset directory (with metadata.json) or one split .npz file."),
+) -> None:
+    """Print simulation counts, frames, points, ranges and statistics of a dataset, checking its files."""
+    from runout.dataset import format_summary, summarize
+
+    typer.echo(format_summary(dataset, summarize(dataset)))
