@@ -1,0 +1,122 @@
+import json
+import os
+import socket
+
+import numpy as np
+import pytest
+import torch
+import torch.multiprocessing as mp
+
+from runout.errors import InputError
+from runout.gns import NetworkConfig, load_simulator
+from runout.gns.evaluation import compare
+from runout.gns.rollout import rollout_trajectory
+from runout.train import TrainConfig, train
+from runout.trajectory import trajectory_from_features
+from test_gns_synthetic import BOUNDS, FRAME_DT, falling_block, write_dataset
+
+torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
+
+TINY = NetworkConfig(latent=16, hidden=16, hidden_layers=2, message_passing_steps=2)
+
+
+def config(data, out, **kw) -> TrainConfig:
+    settings = dict(network=TINY, lr_init=1e-3, log_every=1, save_every=10, valid_every=0, checkpoint_layers=False)
+    return TrainConfig(data=data, out=out, **{**settings, **kw})
+
+
+def losses(run) -> list[float]:
+    lines = [json.loads(ln) for ln in (run / "log.jsonl").read_text().splitlines()]
+    return [r["loss"] for r in lines if "loss" in r]
+
+
+def test_loss_falls_on_a_tiny_dataset(tmp_path):
+    data = write_dataset(tmp_path / "data")
+    train(config(data, tmp_path / "run", steps=150, lr_init=3e-3, noise_velocity_std=0.0))  # noise sets a floor
+    curve = losses(tmp_path / "run")
+    assert np.mean(curve[-20:]) < 0.3 * np.mean(curve[:20])
+
+
+def test_a_stopped_run_resumes_exactly_as_if_never_stopped(tmp_path):
+    data = write_dataset(tmp_path / "data")
+    whole = train(config(data, tmp_path / "whole", steps=30, checkpoint_layers=True))
+    train(config(data, tmp_path / "broken", steps=20, checkpoint_layers=True))
+    with open(tmp_path / "broken" / "log.jsonl", "a") as log:  # lines a killed run wrote after its checkpoint
+        log.write(json.dumps({"step": 21, "loss": -1.0}) + "\n")
+    resumed = train(config(data, tmp_path / "broken", steps=30, resume=True, checkpoint_layers=True))
+    assert losses(tmp_path / "broken") == losses(tmp_path / "whole")
+    for a, b in zip(whole.state_dict().values(), resumed.state_dict().values()):
+        assert torch.equal(a, b)
+
+
+def test_a_new_run_refuses_to_overwrite_a_checkpoint(tmp_path):
+    data = write_dataset(tmp_path / "data")
+    train(config(data, tmp_path / "run", steps=2, save_every=1))
+    with pytest.raises(InputError, match="pass --resume"):
+        train(config(data, tmp_path / "run", steps=4))
+
+
+def test_resuming_against_data_of_another_schema_names_the_difference(tmp_path):
+    train(config(write_dataset(tmp_path / "friction"), tmp_path / "run", steps=2))
+    cohesive = write_dataset(tmp_path / "cohesive", width=2)
+    with pytest.raises(InputError, match=r"material_features is \[tan_phi\] in the model but \[tan_phi, c_over_100kPa\]"):
+        train(config(cohesive, tmp_path / "run", steps=4, resume=True))
+
+
+def test_fine_tuning_on_cohesive_data_starts_from_the_base_predictions(tmp_path):
+    base_run = tmp_path / "base"
+    train(config(write_dataset(tmp_path / "friction"), base_run, steps=20))
+    cohesive = write_dataset(tmp_path / "cohesive", width=2)
+    tuned = train(config(cohesive, tmp_path / "tuned", steps=1, init=base_run / "checkpoint.pt", lr_init=0.0, lr_final=0.0))
+    base = load_simulator(base_run / "checkpoint.pt")
+    assert tuned.schema.material_features == ("tan_phi", "c_over_100kPa")
+    positions, ptype, material = falling_block(12, 0.4, cohesion=0.5)
+    window = torch.from_numpy(positions[:6]).transpose(0, 1)
+    bounds = torch.tensor(BOUNDS)
+    with torch.no_grad():
+        expected = base.next_positions(window, torch.from_numpy(ptype), torch.from_numpy(material[:, :1]), bounds)
+        got = tuned.next_positions(window, torch.from_numpy(ptype), torch.from_numpy(material), bounds)
+    assert torch.equal(expected, got)
+    assert load_simulator(tmp_path / "tuned" / "checkpoint.pt").schema.material_width == 2
+
+
+def test_a_tiny_model_overfits_one_trajectory_and_rolls_it_out(tmp_path):
+    data = write_dataset(tmp_path / "data", frames=24, n_train=1)
+    model = train(config(data, tmp_path / "run", steps=500, noise_velocity_std=0.0, lr_init=3e-3))
+    positions, ptype, material = falling_block(24, *_only_material(data))
+    truth = trajectory_from_features(positions, ptype, material, FRAME_DT, BOUNDS)
+    fitted = compare(rollout_trajectory(model, truth, 24, stop_speed=None), truth)
+    untrained = train(config(data, tmp_path / "untrained", steps=1, lr_init=0.0, lr_final=0.0))
+    baseline = compare(rollout_trajectory(untrained, truth, 24, stop_speed=None), truth)
+    assert fitted["position_mse_mean_m2"] < 0.02 * baseline["position_mse_mean_m2"]
+    assert fitted["position_mse_final_m2"] < 0.05  # m^2, for a 3 m fall
+    assert abs(fitted["runout_error"]) < 0.02
+
+
+def _only_material(data):
+    from runout.dataset import read_simulations
+
+    (_, _, material), = read_simulations(data / "train.npz")
+    return (float(material[0, 0]),)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _ddp_worker(rank: int, world: int, port: int, data, out, result_dir):
+    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), LOCAL_RANK=str(rank), WORLD_SIZE=str(world))
+    torch.set_num_threads(1)
+    model = train(config(data, out, steps=6, device="cpu"))
+    torch.save(model.state_dict(), result_dir / f"rank{rank}.pt")
+
+
+def test_two_gloo_processes_keep_identical_parameters(tmp_path):
+    data = write_dataset(tmp_path / "data", n_train=4)
+    mp.spawn(_ddp_worker, args=(2, _free_port(), data, tmp_path / "run", tmp_path), nprocs=2, join=True)
+    a, b = (torch.load(tmp_path / f"rank{r}.pt") for r in (0, 1))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    saved = load_simulator(tmp_path / "run" / "checkpoint.pt").state_dict()
+    assert all(torch.equal(a[k], saved[k]) for k in a)
