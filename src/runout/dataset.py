@@ -9,6 +9,7 @@ a = v_t - v_{t-1} (m per frame, m per frame^2), pooled over every point and fram
 from __future__ import annotations
 
 import json
+import pickle
 import zipfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -46,8 +47,10 @@ def iter_simulations(path: str | Path) -> Iterator[Simulation]:
         raise InputError(f"{path}: no such dataset file.")
     try:
         archive = np.load(path, allow_pickle=True)
-    except (OSError, ValueError, zipfile.BadZipFile) as exc:
+    except (OSError, ValueError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError) as exc:
         raise InputError(f"{path}: not a readable npz file ({exc}).") from None
+    if not isinstance(archive, np.lib.npyio.NpzFile):
+        raise InputError(f"{path}: not a readable npz file (it holds a single array, not simulations).")
     with archive:
         if "gns_data" in archive.files:
             items = iter(archive["gns_data"])
