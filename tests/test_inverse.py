@@ -315,6 +315,21 @@ def test_killed_run_resumes_on_the_same_path(tmp_path):
     np.testing.assert_array_equal(resumed.values, finished.values)
 
 
+def test_a_stopped_run_continues_with_more_iterations(toy, tmp_path):
+    free = (FreeParameter("a", "c", 0.2, -0.5, 2.0), FreeParameter("b", "c", 2.5, 0.0, 3.0))
+    start = np.array([p.normalise(p.initial) for p in free])
+    info = RunInfo("d", "test", "", start.tolist())
+    whole = minimise(rosenbrock, free, start, tmp_path / "whole", info, OptimiserSpec(), "test")
+    short = minimise(rosenbrock, free, start, tmp_path / "run", info, OptimiserSpec(max_iterations=5), "test")
+    assert short.iterations == 5
+    longer = minimise(rosenbrock, free, start, tmp_path / "run", info, OptimiserSpec(), "test")
+    np.testing.assert_array_equal(longer.values, whole.values)
+    parameters = "[parameters.left]\nc = { lower = 1.0, upper = 80.0 }\n"
+    digest = {text: load_inverse_spec(write_spec(toy, text, name="d.toml")).digest for text in (
+        parameters, parameters + "[optimiser]\nmax_iterations = 99", parameters.replace("80.0", "90.0"))}
+    assert len(set(digest.values())) == 2 and digest[parameters] != digest[parameters.replace("80.0", "90.0")]
+
+
 def test_history_from_another_spec_is_refused(two_parameter_run, tmp_path):
     spec, problem, _ = two_parameter_run
     start = np.array(spec.initial_normalised())

@@ -145,10 +145,7 @@ class History:
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    """Write then rename, so a kill never leaves a half-written file."""
+    """Write then rename, so a killed process never leaves a half-written file."""
     tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w") as f:
-        f.write(text)
-        f.flush()
-        os.fsync(f.fileno())
+    tmp.write_text(text)
     os.replace(tmp, path)

@@ -8,6 +8,7 @@ rest (frames 0-5), so the first frame it predicts is frame 6. See docs/inverse-f
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import tomllib
 from dataclasses import dataclass, replace
@@ -93,7 +94,7 @@ class InverseSpec:
     loss: LossSpec
     optimiser: OptimiserSpec
     steps: int | None  # rollout steps; None: as far as the last observed frame
-    digest: str  # sha256 of the spec file, to check that a resumed run is the same problem
+    digest: str  # sha256 of the problem (spec less [optimiser]): a resumed run must match it
 
     @property
     def names(self) -> list[str]:
@@ -120,7 +121,14 @@ def load_inverse_spec(path: str | Path) -> InverseSpec:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise InputError(f"{path}: not a valid TOML file ({exc}).") from None
-    return spec_from_dict(data, path, hashlib.sha256(text.encode()).hexdigest())
+    return spec_from_dict(data, path, problem_digest(data))
+
+
+def problem_digest(data: dict) -> str:
+    """sha256 of everything but the [optimiser] limits, so a finished run can be continued
+    with a larger max_iterations from its history."""
+    problem = {k: v for k, v in data.items() if k != "optimiser"}
+    return hashlib.sha256(json.dumps(problem, sort_keys=True, default=str).encode()).hexdigest()
 
 
 def spec_from_dict(data: dict, source: Path, digest: str = "") -> InverseSpec:

@@ -1,0 +1,99 @@
+"""Inverse-analysis cost on the paper's dam: seconds per L-BFGS-B evaluation (forward rollout,
+reverse-mode backward pass with each step recomputed) and peak memory.
+
+The dam is examples/dam.toml with the free parameters of examples/dam_inverse.toml (c1, c2,
+phi3); the rollout runs the scene's 400 frames (394 steps) unless --steps says otherwise.
+Without --model the full-size network (latent 128, 10 processor steps, R = 4.6 m) is
+randomly initialised: the cost per step depends on the graph size, not on the weights.
+Peak memory: CUDA max allocated; on CPU the bytes autograd holds for the backward pass
+(saved-tensor hooks) and the process's peak RSS. Goals: <= 6 s per iteration and <= 8 GB on
+one H100 (paper: ~62 s per iteration on a Quadro RTX 5000, 20 s forward + 42 s gradient).
+
+    .venv/bin/python bench/inverse.py [--model CKPT] [--device cpu|cuda] [--steps 394]
+                                      [--repeats 2] [--threads 2] [--no-checkpoint]
+    .venv/bin/python bench/inverse.py --engine mpm-fd [--steps 394]   # the 2P + 1 = 7 MPM runs
+"""
+
+from __future__ import annotations
+
+import argparse
+import resource
+import statistics
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from runout.gns import FeatureSchema, NetworkConfig, Normalisation, Simulator, load_simulator
+from runout.inverse import load_inverse_spec
+from runout.inverse.forward import inverse_problem
+from runout.inverse.mpm_fd import MpmFiniteDifference
+from runout.inverse.observation import Observation
+from runout.inverse.spec import INPUT_FRAMES
+from runout.scene import fill_points
+
+REPO = Path(__file__).resolve().parents[1]
+SPEC = REPO / "examples" / "dam_inverse.toml"
+STATS = Normalisation((0.0, -0.01), (0.05, 0.05), (0.0, -1e-3), (5e-3, 5e-3), 0.067 * 0.0375)  # as bench/gns.py
+
+
+def simulator_for(model: str | None, device: str) -> tuple[Simulator, str]:
+    if model:
+        return load_simulator(model, device), model
+    torch.manual_seed(0)
+    return Simulator(FeatureSchema(), STATS, 4.6, NetworkConfig()).to(device).eval(), "random full-size GNS"
+
+
+def dam_observation(spec, steps: int) -> Observation:
+    """The dam at rest as the target: the loss value does not change the cost."""
+    points = fill_points(spec.scene)
+    last = INPUT_FRAMES - 1 + steps
+    return Observation((last,), points.position[None].copy(), steps, points.position, points.particle_type,
+                       points.material_id, None)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--model", default=None, help="GNS checkpoint (default: random full-size network)")
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--steps", type=int, default=None, help="rollout steps (default: the dam scene's frames - 6)")
+    ap.add_argument("--repeats", type=int, default=2, help="timed evaluations after one warm-up")
+    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--no-checkpoint", action="store_true", help="keep every step's activations")
+    ap.add_argument("--engine", choices=("gns", "mpm-fd"), default="gns")
+    args = ap.parse_args()
+    torch.set_num_threads(args.threads)
+
+    spec = load_inverse_spec(SPEC)
+    steps = args.steps or spec.scene.time.frames - INPUT_FRAMES
+    observation = dam_observation(spec, steps)
+    values = np.array([p.initial for p in spec.free])
+    if args.engine == "mpm-fd":
+        evaluate, model_name = MpmFiniteDifference(spec, observation, device=args.device), "MPM, 7 scenes in one batch"
+    else:
+        simulator, model_name = simulator_for(args.model, args.device)
+        evaluate = inverse_problem(spec, observation, simulator, checkpoint=not args.no_checkpoint).evaluate
+    evaluate(values)  # warm-up
+    runs = [evaluate(values) for _ in range(args.repeats)]
+    report(runs, len(observation.initial), steps, model_name, args, spec.names)
+
+
+def report(runs, n_points: int, steps: int, model_name: str, args, names: list[str]) -> None:
+    forward = statistics.median(r.forward_s for r in runs)
+    backward = statistics.median(r.backward_s for r in runs)
+    peak = max(r.peak_memory_bytes for r in runs)
+    print(f"dam: {n_points} points, {steps} steps, {model_name}, device {args.device}, "
+          f"threads {args.threads}" + (f", checkpoint {not args.no_checkpoint}" if args.engine == "gns" else "")
+          + f", free {', '.join(names)}")
+    print(f"per evaluation: forward {forward:.2f} s, backward {backward:.2f} s, total {forward + backward:.2f} s "
+          f"({1000 * (forward + backward) / steps:.1f} ms per step)")
+    if args.device.startswith("cuda"):
+        print(f"peak memory: {peak / 1e9:.2f} GB (torch.cuda.max_memory_allocated); goal <= 8 GB, <= 6 s per iteration")
+    else:
+        rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # KiB -> bytes (Linux)
+        print(f"peak memory: {peak / 1e6:.1f} MB held for the backward pass (saved-tensor hooks); "
+              f"process peak RSS {rss / 1e9:.2f} GB")
+
+
+if __name__ == "__main__":
+    main()
