@@ -42,6 +42,7 @@ class TimeSpec:
     frame_dt: float = 0.0375  # s between output frames
     frames: int = 480
     cfl: float = 0.4  # Courant number on dx / (c_p + v_max); the substep count follows
+    flip: float = 0.99  # FLIP share of the point-velocity update (the rest PIC/APIC)
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,7 @@ class Scene:
 # ----------------------------------------------------------------------------- parsing
 
 _DOMAIN_KEYS = {"width", "height", "cell_size", "points_per_cell", "base_friction", "wall_friction"}
-_TIME_KEYS = {"frame_dt", "frames", "cfl"}
+_TIME_KEYS = {"frame_dt", "frames", "cfl", "flip"}
 _MATERIAL_KEYS = {
     "model", "friction_angle", "cohesion", "youngs_modulus", "poisson_ratio", "density", "k0",
     "tension_cutoff",
@@ -181,6 +182,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
         frame_dt=_number(t, "frame_dt", "time", source, 0.0375),
         frames=frames,
         cfl=_number(t, "cfl", "time", source, 0.4),
+        flip=_number(t, "flip", "time", source, 0.99),
     )
 
     mats_in = data["materials"]
@@ -336,6 +338,7 @@ def validate_scene(scene: Scene, source: str = "<scene>") -> None:
     _in_range(t.frame_dt, 0, 10, "frame_dt", "time", source, " s", lo_open=True)
     _in_range(t.frames, 1, 1_000_000, "frames", "time", source)
     _in_range(t.cfl, 0, 1, "cfl", "time", source, lo_open=True)
+    _in_range(t.flip, 0, 1, "flip", "time", source)
     for name, m in scene.materials.items():
         where = f"materials.{name}"
         _in_range(m.friction_angle, 0, 60, "friction_angle", where, source, " degrees")

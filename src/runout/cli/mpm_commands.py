@@ -1,0 +1,56 @@
+"""`runout mpm`, `runout show` and `runout demo`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+from runout.cli.app import app
+
+
+@app.command()
+def mpm(
+    scene: Path = typer.Argument(..., help="Scene file (TOML or JSON), see docs/scene-format.md."),
+    out: Path = typer.Option(..., "--out", help="Output directory (created)."),
+    device: str = typer.Option("cpu", help="cpu or cuda."),
+    frames: int = typer.Option(None, help="Output frames including frame 0 (default: the scene's [time] frames)."),
+    animate: bool = typer.Option(True, help="Write animation.gif."),
+) -> None:
+    """Run the MPM on a scene: writes trajectory.npz + metadata.json (GNS layout, material
+    features [tan phi, c/100 kPa]), initial.png, final.png and animation.gif."""
+    from runout.mpm import simulate
+    from runout.plots import save_animation, save_frame
+    from runout.scene import load_scene
+    from runout.trajectory import save_trajectory
+
+    sc = load_scene(scene)
+    if frames is not None:
+        sc = sc.with_frames(frames)
+    traj = simulate([sc], device=device)[0]
+    out.mkdir(parents=True, exist_ok=True)
+    save_trajectory(traj, out)
+    save_frame(traj, 0, out / "initial.png")
+    save_frame(traj, traj.n_frames - 1, out / "final.png")
+    if animate:
+        save_animation([traj], out / "animation.gif", labels=["MPM"])
+    info = traj.info
+    typer.echo(
+        f"{traj.n_points} points, {traj.n_frames} frames, {info['substeps_per_frame']} substeps/frame, "
+        f"{info['wall_time_s']:.1f} s; wrote {out}/trajectory.npz, metadata.json, initial.png, final.png"
+        + (", animation.gif" if animate else "")
+    )
+
+
+@app.command()
+def show(
+    scene: Path = typer.Argument(..., help="Scene file (TOML or JSON)."),
+    out: Path = typer.Option(Path("scene.png"), "--out", help="PNG to write."),
+) -> None:
+    """Draw a scene's regions and materials without simulating."""
+    from runout.plots import draw_scene
+    from runout.scene import fill_points, load_scene
+
+    sc = load_scene(scene)
+    draw_scene(sc, out)
+    typer.echo(f"{len(fill_points(sc))} points; wrote {out}")

@@ -1,0 +1,209 @@
+"""Explicit plane-strain MPM, batched over scenes in one flat point array.
+
+The scheme: quadratic B-spline shape functions with APIC transfers (MLS-MPM force form),
+update-stress-last: p2g -> grid_update -> g2p -> update_stress. Units: m, s, kg per metre of
+thickness, Pa. Stress tension positive. Each scene owns a block of a flat background grid
+(padded by PAD nodes beyond every wall); a point knows its scene's block offset, so one
+index_add serves all scenes and no scene ever touches another's nodes.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import torch
+
+from runout.mpm.geostatic import GRAVITY
+from runout.mpm.mohr_coulomb import MaterialArrays, update_stress
+
+PAD = 2  # grid nodes beyond each wall; quadratic B-splines reach 1.5 cells
+_OFFSETS = [(a, b) for a in range(3) for b in range(3)]
+
+
+@dataclass
+class Constraint:
+    """Rigid frictional surface on a set of grid nodes: outward unit normals, Coulomb mu."""
+
+    ids: torch.Tensor  # [B] node ids (no id twice within one constraint)
+    normal: torch.Tensor  # [B, 2]
+    mu: torch.Tensor  # [B]
+
+
+@dataclass
+class Grid:
+    """All scenes' grids, flattened; boundary conditions as node lists applied in order."""
+
+    size: int
+    dx: float
+    node_offset: torch.Tensor  # [S] first node of each scene
+    ny_nodes: torch.Tensor  # [S] nodes per grid column of each scene
+    constraints: list[Constraint]  # side walls, base and top, fixed-ground contact
+    stuck: torch.Tensor  # [K] node ids deep inside fixed ground: velocity zero
+
+
+@dataclass
+class Points:
+    """State of the moving points of all scenes."""
+
+    x: torch.Tensor  # [P, 2] m
+    v: torch.Tensor  # [P, 2] m/s
+    C: torch.Tensor  # [P, 2, 2] APIC affine velocity = velocity gradient, 1/s
+    stress: torch.Tensor  # [P, 4] (sxx, syy, sxy, szz) Pa
+    volume: torch.Tensor  # [P] m^2
+    mass: torch.Tensor  # [P] kg/m
+    scene: torch.Tensor  # [P] scene index
+    upper: torch.Tensor  # [P, 2] domain size (clamp bound), m
+    mat: MaterialArrays
+    node_base: torch.Tensor  # [P] first grid node of the point's scene
+    ny: torch.Tensor  # [P] nodes per grid column of the point's scene
+    stencil_offsets: torch.Tensor  # [P, 9] node-id offsets a * ny + b of the 3 x 3 stencil
+
+
+def stencil(x: torch.Tensor, node_base: torch.Tensor, ny: torch.Tensor, offsets: torch.Tensor, dx: float):
+    """Node ids [P, 9], weights [P, 9] and fractional cell positions fx [P, 2] of each point.
+
+    node_base [P] is the first node of the point's scene, ny [P] its nodes per grid column,
+    offsets [P, 9] = a * ny + b for the stencil's (a, b). The node-minus-point offset of
+    stencil node k is (OFFSETS[k] - fx) * dx."""
+    xg = x * (1.0 / dx)
+    base = torch.floor(xg - 0.5)
+    fx = xg - base  # in [0.5, 1.5)
+    wx = torch.stack((0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2), dim=1)
+    w = (wx[:, :, None, 0] * wx[:, None, :, 1]).reshape(-1, 9)  # [P, 9]
+    cell = base.long() + PAD
+    ids = (node_base + cell[:, 0] * ny + cell[:, 1])[:, None] + offsets
+    return ids, w, fx
+
+
+def stencil_offsets(ny: torch.Tensor) -> torch.Tensor:
+    """[P, 9] node-id offsets a * ny + b of the 3 x 3 stencil for points with ny nodes per column."""
+    a = torch.tensor([a for a, _ in _OFFSETS], device=ny.device)
+    b = torch.tensor([b for _, b in _OFFSETS], device=ny.device)
+    return a[None, :] * ny[:, None] + b[None, :]
+
+
+def node_offsets(dx: float, like: torch.Tensor) -> torch.Tensor:
+    """[9, 2] stencil node offsets in metres (node index offset times dx)."""
+    return torch.tensor(_OFFSETS, dtype=like.dtype, device=like.device) * dx
+
+
+def p2g(pts: Points, grid: Grid, dt: float):
+    """Scatter mass, APIC momentum and the internal-force impulse (MLS form) to the grid."""
+    ids, w, fx = stencil(pts.x, pts.node_base, pts.ny, pts.stencil_offsets, grid.dx)
+    d_inv = 4.0 / grid.dx**2  # inverse of the quadratic B-spline inertia tensor D
+    sxx, syy, sxy, _ = pts.stress.unbind(1)
+    vol = (dt * d_inv) * pts.volume
+    m = pts.mass
+    # momentum: m (v + C (x_i - x_p)); impulse: -dt V D^-1 sigma (x_i - x_p)
+    affine = torch.stack(
+        (m[:, None, None] * pts.C,
+         -vol[:, None, None] * torch.stack((sxx, sxy, sxy, syy), 1).reshape(-1, 2, 2)), dim=1,
+    )  # [P, 2, 2, 2]
+    # A (x_i - x_p) for the 9 nodes as one GEMM: A @ offsets^T - A @ (fx dx)
+    offs = node_offsets(grid.dx, pts.x)
+    a_off = (affine.reshape(-1, 2) @ offs.T).reshape(-1, 2, 2, 9)  # [P, which, i, node]
+    a_fx = torch.einsum("pwij,pj->pwi", affine, fx * grid.dx)
+    shift = a_fx.clone()
+    shift[:, 0] -= m[:, None] * pts.v
+    node_terms = w[:, None, None, :] * (a_off - shift[..., None])  # [P, 2, 2, 9]
+    flat = ids.reshape(-1)
+    m_grid = torch.zeros(grid.size, dtype=pts.x.dtype, device=pts.x.device)
+    p_grid = torch.zeros(grid.size, 4, dtype=pts.x.dtype, device=pts.x.device)
+    m_grid.index_add_(0, flat, (m[:, None] * w).reshape(-1))
+    p_grid.index_add_(0, flat, node_terms.permute(0, 3, 1, 2).reshape(-1, 4))
+    return m_grid, p_grid, (ids, w, fx)
+
+
+def _coulomb(v, normal, mu):
+    """Remove the velocity into a rigid surface (outward normal) and reduce the tangential
+    velocity by mu times the removed normal velocity (Coulomb friction, stick if it fits)."""
+    vn = (v * normal).sum(-1, keepdim=True)
+    hit = vn < 0
+    vt = v - vn * normal
+    speed_t = vt.norm(dim=-1, keepdim=True)
+    scale = torch.clamp(1.0 + mu[:, None] * vn / speed_t.clamp_min(1e-12), min=0.0)
+    return torch.where(hit, vt * scale, v)
+
+
+def grid_update(m_grid, p_grid, grid: Grid, dt: float):
+    """Grid velocity with gravity, then walls (slip + Coulomb) and fixed-ground contact.
+    Returns the new velocity and the velocity before this step's forces (for FLIP)."""
+    has_mass = (m_grid > 0)[:, None]
+    v_both = torch.where(has_mass, p_grid / m_grid.clamp_min(1e-30)[:, None], torch.zeros_like(p_grid))
+    v_before = v_both[:, :2]  # transferred momentum only
+    v = v_before + v_both[:, 2:]  # plus the internal-force impulse
+    v[:, 1] -= GRAVITY * dt
+    v = torch.where(has_mass, v, torch.zeros_like(v))
+    for c in grid.constraints:
+        v[c.ids] = _coulomb(v[c.ids], c.normal, c.mu)
+    v[grid.stuck] = 0.0
+    return v, v_before
+
+
+def g2p(pts: Points, v_grid, v_before, cache, grid: Grid, dt: float, flip: float) -> None:
+    """Gather velocity and its gradient (APIC C), move the points, clamp them inside.
+
+    The point velocity blends FLIP (old velocity plus the grid's change) with PIC/APIC (the
+    new grid velocity): transfers alone dissipate energy at every substep, so without FLIP
+    the runout would shrink as the time step is refined."""
+    ids, w, fx = cache
+    wv = w[..., None] * v_grid[ids]  # [P, 9, 2]
+    v_pic = wv.sum(1)
+    v_old_grid = (w[..., None] * v_before[ids]).sum(1)
+    v_flip = pts.v + v_pic - v_old_grid
+    # C = D^-1 sum_k w_k v_k (x_k - x_p)^T, with the stencil sum as one GEMM
+    offs = node_offsets(grid.dx, pts.x)
+    wv_off = (wv.transpose(1, 2).reshape(-1, 9) @ offs).reshape(-1, 2, 2)
+    pts.C = (4.0 / grid.dx**2) * (wv_off - v_pic[:, :, None] * (fx * grid.dx)[:, None, :])
+    pts.v = flip * v_flip + (1.0 - flip) * v_pic
+    x = pts.x + dt * v_pic  # positions follow the grid (PIC) velocity: stable and non-penetrating
+    eps = 1e-4 * grid.dx
+    pts.x = torch.minimum(torch.clamp(x, min=eps), pts.upper - eps)
+
+
+def substep(pts: Points, grid: Grid, dt: float, flip: float = 0.0) -> None:
+    m_grid, p_grid, cache = p2g(pts, grid, dt)
+    v_grid, v_before = grid_update(m_grid, p_grid, grid, dt)
+    g2p(pts, v_grid, v_before, cache, grid, dt, flip)
+    grad_v = pts.C
+    pts.stress = update_stress(pts.stress, grad_v, dt, pts.mat)
+    j = (1 + dt * grad_v[:, 0, 0]) * (1 + dt * grad_v[:, 1, 1]) - dt * dt * grad_v[:, 0, 1] * grad_v[:, 1, 0]
+    pts.volume = pts.volume * j  # det(I + dt L)
+
+
+def energies(pts: Points, n_scenes: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """Kinetic and gravitational potential energy (J per metre of thickness) per scene."""
+    ke = torch.zeros(n_scenes, dtype=pts.x.dtype, device=pts.x.device)
+    pe = torch.zeros_like(ke)
+    ke.index_add_(0, pts.scene, 0.5 * pts.mass * (pts.v**2).sum(1))
+    pe.index_add_(0, pts.scene, pts.mass * GRAVITY * pts.x[:, 1])
+    return ke, pe
+
+
+def stable_dt(dx: float, p_wave_speed: float, max_speed: float, cfl: float) -> float:
+    """CFL time step dx / (c_p + v_max) times the Courant number (s)."""
+    return cfl * dx / (p_wave_speed + max_speed)
+
+
+def p_wave_speed(youngs_pa: float, nu: float, density: float) -> float:
+    m = youngs_pa * (1 - nu) / ((1 + nu) * (1 - 2 * nu))  # constrained modulus, Pa
+    return math.sqrt(m / density)
+
+
+def fixed_ground_contact(mass, ids, w, fx, size: int, full_node_mass: float, dx: float):
+    """Contact constraint and stuck nodes of the fixed ground (computed once: it never moves).
+
+    A node is in contact when the fixed points give it at least 0.4 of a full node's mass;
+    its outward normal is minus the gradient of the fixed-mass field."""
+    m_fix = torch.zeros(size, dtype=w.dtype, device=w.device)
+    n_fix = torch.zeros(size, 2, dtype=w.dtype, device=w.device)
+    dpos = node_offsets(dx, w)[None] - (fx * dx)[:, None, :]  # [P, 9, 2] node minus point, m
+    m_fix.index_add_(0, ids.reshape(-1), (mass[:, None] * w).reshape(-1))
+    n_fix.index_add_(0, ids.reshape(-1), (mass[:, None, None] * w[..., None] * dpos).reshape(-1, 2))
+    contact = m_fix >= 0.4 * full_node_mass
+    norm = n_fix.norm(dim=1)
+    deep = contact & (norm < 0.05 * full_node_mass * dx)  # symmetric surroundings: inside the ground
+    surface = torch.nonzero(contact & ~deep).squeeze(1)
+    normal = n_fix[surface] / norm[surface, None]
+    return surface, normal, torch.nonzero(deep).squeeze(1)

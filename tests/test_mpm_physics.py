@@ -1,0 +1,186 @@
+"""Physics of the MPM solver, on small scenes (4 m cells, 2 x 2 points per cell).
+
+Each test can fail: thresholds are physical (metres, degrees, per cent), not tautologies.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from runout.mpm import simulate
+from runout.mpm.batch import build_batch, relax_geostatic
+from runout.scene import scene_from_dict
+
+RHO_G = 1800.0 * 9.81  # unit weight, N/m^3
+
+
+def make_scene(polygons, materials, width=200.0, height=80.0, frames=200, **domain):
+    """polygons: list of (material name, vertices[, velocity])."""
+    regions = []
+    for item in polygons:
+        name, poly = item[0], item[1]
+        region = {"material": name, "polygon": [list(p) for p in poly]}
+        if len(item) > 2:
+            region["velocity"] = list(item[2])
+        regions.append(region)
+    cfl = domain.pop("cfl", 0.4)
+    return scene_from_dict(
+        {
+            "domain": {"width": width, "height": height, **domain},
+            "time": {"frames": frames, "cfl": cfl},
+            "materials": materials,
+            "regions": regions,
+        }
+    )
+
+
+def column(width, height, phi=30.0, c=0.0, frames=200, **domain):
+    mats = {"soil": {"friction_angle": phi, "cohesion": c}}
+    return make_scene([("soil", [(0, 0), (width, 0), (width, height), (0, height)])], mats, frames=frames, **domain)
+
+
+def front(traj) -> float:
+    """Runout front: the largest x reached by soil in the last frame (m)."""
+    return float(traj.positions[-1, traj.soil, 0].max())
+
+
+def test_level_layer_keeps_geostatic_stress_and_stays_still():
+    """Checked at points more than one cell (4 m) from the base and the free surface: within
+    a cell of a boundary the discrete equilibrium redistributes stress between point rows."""
+    scene = column(200.0, 40.0, phi=30.0, frames=268)  # 268 frames x 0.0375 s = 10 s
+    batch = build_batch([scene], torch.device("cpu"), torch.float64)
+    relax_geostatic(batch)
+    x = batch.pts.x[:, 0].numpy()
+    y = batch.pts.x[:, 1].numpy()
+    interior = (x > 40) & (x < 160) & (y > 4.0) & (y < 36.0)
+    depth = 40.0 - y[interior]
+    sigma_v = -batch.pts.stress[interior, 1].numpy()
+    expected = RHO_G * depth
+    assert np.all(np.abs(sigma_v - expected) <= 0.03 * expected), "sigma'_v must be rho g depth within 3 %"
+    traj = simulate([scene], progress=False)[0]
+    moved = np.linalg.norm(traj.positions - traj.positions[0], axis=2).max()
+    assert moved < 0.01, f"a level layer at rest moved {moved:.4f} m in 10 s"
+
+
+SLOPE = [(0, 0), (120, 0), (80, 40), (0, 40)]  # 40 m high, 45 degree face
+
+
+def test_strong_slope_stands_weak_slope_fails():
+    strong = make_scene([("soil", SLOPE)], {"soil": {"friction_angle": 30.0, "cohesion": 100.0}}, frames=120)
+    weak = make_scene([("soil", SLOPE)], {"soil": {"friction_angle": 20.0, "cohesion": 0.0}}, frames=120)
+    t_strong, t_weak = simulate([strong, weak], progress=False)
+    moved_strong = np.linalg.norm(t_strong.positions[-1] - t_strong.positions[0], axis=1).max()
+    moved_weak = np.linalg.norm(t_weak.positions[-1] - t_weak.positions[0], axis=1).max()
+    assert moved_strong < 0.05, f"a slope with c = 100 kPa moved {moved_strong:.3f} m"
+    assert moved_weak > 5.0, f"a 45 degree cohesionless slope with phi = 20 moved only {moved_weak:.2f} m"
+
+
+def test_runout_grows_as_friction_falls():
+    phis = [40.0, 30.0, 20.0, 10.0]
+    trajs = simulate([column(40.0, 40.0, phi=p, frames=240) for p in phis], progress=False)
+    fronts = [front(t) for t in trajs]
+    assert all(a < b for a, b in zip(fronts, fronts[1:])), f"fronts for phi {phis}: {fronts}"
+
+
+def test_runout_grows_as_cohesion_falls():
+    cs = [40.0, 20.0, 10.0, 0.0]
+    trajs = simulate([column(40.0, 40.0, phi=20.0, c=c, frames=240) for c in cs], progress=False)
+    fronts = [front(t) for t in trajs]
+    assert all(a < b for a, b in zip(fronts, fronts[1:])), f"fronts for c {cs} kPa: {fronts}"
+
+
+def test_normalised_runout_grows_with_aspect_ratio():
+    shapes = [(48.0, 24.0), (32.0, 32.0), (24.0, 48.0)]  # a = 0.5, 1, 2
+    trajs = simulate([column(w, h, phi=30.0, frames=240) for w, h in shapes], progress=False)
+    ln = [(front(t) - w) / w for t, (w, _) in zip(trajs, shapes)]
+    assert ln[0] < ln[1] < ln[2], f"normalised runout for a = 0.5, 1, 2: {ln}"
+
+
+def test_cohesionless_deposit_is_not_steeper_than_phi():
+    phi = 30.0
+    traj = simulate([column(40.0, 40.0, phi=phi, frames=300)], progress=False)[0]
+    pos = traj.positions[-1]
+    bins = np.arange(0, pos[:, 0].max() + 4, 4.0)
+    idx = np.digitize(pos[:, 0], bins)
+    xs, tops = [], []
+    for k in np.unique(idx):
+        sel = idx == k
+        xs.append(pos[sel, 0].mean())
+        tops.append(pos[sel, 1].max())
+    xs, tops = np.array(xs), np.array(tops)
+    h = tops.max()
+    flank = (tops > 0.15 * h) & (tops < 0.85 * h)
+    slope = -np.polyfit(xs[flank], tops[flank], 1)[0]
+    angle = math.degrees(math.atan(slope))
+    assert 0 < angle <= phi + 3.0, f"deposit surface at {angle:.1f} deg for phi = {phi}"
+
+
+def test_mass_energy_and_walls():
+    """A block thrown at the right wall: no point leaves the domain, the mass of every point
+    is unchanged, and kinetic + potential energy never rises by more than 1 %."""
+    block = [(120, 40), (160, 40), (160, 70), (120, 70)]
+    scene = make_scene([("soil", block, (15.0, 10.0))], {"soil": {"friction_angle": 25.0, "cohesion": 5.0}},
+                       frames=160)
+    batch = build_batch([scene], torch.device("cpu"), torch.float64)
+    mass0 = batch.pts.mass.clone()
+    traj = simulate([scene], progress=False)[0]
+    pos = traj.positions
+    assert pos[..., 0].min() >= 0 and pos[..., 0].max() <= 200.0
+    assert pos[..., 1].min() >= 0 and pos[..., 1].max() <= 80.0
+    assert torch.equal(build_batch([scene], torch.device("cpu"), torch.float64).pts.mass, mass0)
+    assert traj.n_points == len(mass0)
+    energy = np.array(traj.info["kinetic_energy"]) + np.array(traj.info["potential_energy"])
+    rise = (energy.max() - energy[0]) / energy[0]
+    assert rise <= 0.01, f"energy rose by {rise:.2%}"
+    assert energy[-1] < 0.9 * energy[0], "impact and friction must dissipate energy"
+
+
+def test_mirror_symmetric_scene_gives_mirror_symmetric_deposit():
+    mound = [(59, 0), (141, 0), (111, 30), (89, 30)]  # faces miss the point lattice
+    scene = make_scene([("soil", mound)], {"soil": {"friction_angle": 20.0, "cohesion": 5.0}}, frames=200)
+    traj = simulate([scene], progress=False)[0]
+    x0, y0 = traj.positions[0, :, 0], traj.positions[0, :, 1]
+    key = {(round(a, 3), round(b, 3)): k for k, (a, b) in enumerate(zip(x0, y0))}
+    partner = np.array([key[(round(200.0 - a, 3), round(b, 3))] for a, b in zip(x0, y0)])
+    final = traj.positions[-1]
+    mismatch_x = np.abs(final[:, 0] + final[partner, 0] - 200.0).max()
+    mismatch_y = np.abs(final[:, 1] - final[partner, 1]).max()
+    spread = final[:, 0].max() - final[:, 0].min()
+    assert spread > 90.0, "the mound must flow for the test to mean something"
+    assert mismatch_x < 0.5 and mismatch_y < 0.5, f"asymmetry {mismatch_x:.3f} m, {mismatch_y:.3f} m"
+
+
+def test_runout_converges_in_time_step_and_point_density():
+    base = column(32.0, 32.0, phi=25.0, c=5.0, frames=240)
+    half_dt = column(32.0, 32.0, phi=25.0, c=5.0, frames=240, cfl=0.2)
+    dense = column(32.0, 32.0, phi=25.0, c=5.0, frames=240, points_per_cell=3)
+    t_base, t_half, t_dense = simulate([base, half_dt, dense], progress=False)
+    assert t_half.info["substeps_per_frame"] >= 2 * t_base.info["substeps_per_frame"] - 1
+    assert t_dense.n_points > 2 * t_base.n_points
+    runout = lambda t: front(t) - 32.0  # noqa: E731
+    for other, label in ((t_half, "dt halved"), (t_dense, "3 x 3 points per cell")):
+        change = abs(runout(other) - runout(t_base)) / runout(t_base)
+        assert change < 0.05, f"runout changed by {change:.1%} with {label}"
+
+
+def test_batch_equals_each_scene_alone():
+    a = column(32.0, 32.0, phi=25.0, frames=80)
+    b = make_scene([("soil", SLOPE)], {"soil": {"friction_angle": 15.0, "cohesion": 10.0}}, frames=80)
+    together = simulate([a, b], progress=False)
+    alone = [simulate([s], progress=False)[0] for s in (a, b)]
+    assert together[0].info["batch_size"] == 2
+    for t, s in zip(together, alone):
+        np.testing.assert_allclose(t.positions, s.positions, atol=1e-5)
+
+
+@pytest.mark.skipif(not torch.cuda.is_available(), reason="no CUDA GPU")
+def test_cpu_and_cuda_agree():
+    scene = column(32.0, 32.0, phi=25.0, c=5.0, frames=120)
+    cpu = simulate([scene], device="cpu", progress=False)[0]
+    gpu = simulate([scene], device="cuda", progress=False)[0]
+    assert abs(front(cpu) - front(gpu)) < 0.01 * (front(cpu) - 32.0)
+    assert np.abs(cpu.positions - gpu.positions).max() < 0.5
