@@ -165,3 +165,15 @@ def test_rollout_stops_when_the_flow_stops():
         still = frames[-1:].expand(6, -1, -1)
         out = rollout(sim, still, ptype, torch.full((40, 1), 0.5), 200, BOUNDS, stop_speed=1e-4)
     assert MIN_FRAMES_BEFORE_STOP <= out.shape[0] < MIN_FRAMES_BEFORE_STOP + 2 * CHECK_EVERY
+
+
+def test_blocked_inference_equals_the_differentiable_forward(monkeypatch):
+    import runout.gns.network as network
+
+    monkeypatch.setattr(network, "EDGE_BLOCK", 7)  # force many blocks
+    frames, ptype = heap()
+    sim = tiny_simulator()
+    args = (frames.transpose(0, 1), ptype, torch.full((40, 1), 0.5), BOUNDS)
+    with torch.no_grad():
+        blocked = sim(*args)
+    torch.testing.assert_close(blocked, sim(*args).detach())

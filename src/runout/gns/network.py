@@ -13,12 +13,14 @@ import torch
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
+EDGE_BLOCK = 16384  # edges per block in inference (16384 x 128 floats = 8 MiB per temporary)
+
 
 def mlp(n_in: int, hidden: int, hidden_layers: int, n_out: int, layer_norm: bool = True) -> nn.Sequential:
     widths = [n_in] + [hidden] * hidden_layers
     layers: list[nn.Module] = []
     for a, b in zip(widths[:-1], widths[1:]):
-        layers += [nn.Linear(a, b), nn.ReLU()]
+        layers += [nn.Linear(a, b), nn.ReLU(inplace=True)]  # in place: no new [E, hidden] buffer
     layers.append(nn.Linear(widths[-1], n_out))
     if layer_norm:
         layers.append(nn.LayerNorm(n_out))
@@ -34,12 +36,16 @@ class EdgeUpdate(nn.Module):
         super().__init__()
         self.project_nodes = nn.Linear(latent, 2 * hidden)  # [W_s | W_r], bias b
         self.project_edges = nn.Linear(latent, hidden, bias=False)  # W_e
-        self.rest = nn.Sequential(nn.ReLU(), *mlp(hidden, hidden, hidden_layers - 1, latent))
+        self.rest = nn.Sequential(nn.ReLU(inplace=True), *mlp(hidden, hidden, hidden_layers - 1, latent))
 
     def forward(self, v: torch.Tensor, e: torch.Tensor, senders: torch.Tensor, receivers: torch.Tensor):
-        from_sender, from_receiver = self.project_nodes(v).chunk(2, dim=1)
-        gathered = from_sender.index_select(0, senders) + from_receiver.index_select(0, receivers)
-        first = torch.addmm(gathered, e, self.project_edges.weight.t())
+        return self.messages(self.project_nodes(v), e, senders, receivers)
+
+    def messages(self, projected: torch.Tensor, e: torch.Tensor, senders: torch.Tensor, receivers: torch.Tensor):
+        """Messages [E, latent] from the node projections [N, 2 hidden] and edge latents."""
+        from_sender, from_receiver = projected.chunk(2, dim=1)
+        first = from_sender.index_select(0, senders).add_(from_receiver.index_select(0, receivers))
+        first.addmm_(e.to(first.dtype), self.project_edges.weight.t().to(first.dtype))
         return self.rest(first)
 
 
@@ -50,10 +56,26 @@ class InteractionStep(nn.Module):
         self.node_update = mlp(2 * latent, hidden, hidden_layers, latent)
 
     def forward(self, v, e, senders, receivers):
-        message = self.edge_update(v, e, senders, receivers)
-        incoming = torch.zeros_like(v).index_add_(0, receivers, message.to(v.dtype))  # sum aggregation
+        if torch.is_grad_enabled():
+            message = self.edge_update(v, e, senders, receivers)
+            incoming = torch.zeros_like(v).index_add_(0, receivers, message.to(v.dtype))  # sum aggregation
+            e = e + message
+        else:
+            incoming = self._messages_in_place(v, e, senders, receivers)
         v = v + self.node_update(torch.cat([v, incoming], dim=1))
-        return v, e + message
+        return v, e
+
+    def _messages_in_place(self, v, e, senders, receivers):
+        """Inference: edges in blocks of EDGE_BLOCK rows, each block's temporaries small
+        enough to stay in cache and in the allocator (no page faults), e updated in place."""
+        incoming = torch.zeros_like(v)
+        projected = self.edge_update.project_nodes(v)
+        for k in range(0, len(senders), EDGE_BLOCK):
+            block = slice(k, k + EDGE_BLOCK)
+            message = self.edge_update.messages(projected, e[block], senders[block], receivers[block])
+            incoming.index_add_(0, receivers[block], message.to(v.dtype))
+            e[block] += message
+        return incoming
 
 
 class EncodeProcessDecode(nn.Module):
