@@ -1,0 +1,163 @@
+"""Column-collapse study (paper §5.1.1): MPM and GNS over a grid of aspect ratio, phi and c.
+
+For every case: L_0 and L_f are the runout fronts (the largest x of the soil points plus
+half the point spacing, i.e. the edge of the material the points stand for) of the column
+against the left wall at the first and the last frame (m), L^n = (L_f - L_0) / L_0, and the
+error is |L^n_GNS - L^n_MPM| / L^n_MPM x 100 (%). Per aspect ratio: mean error, its
+coefficient of variation and R² of the GNS against the MPM (1:1 line). The GNS starts from
+the MPM's first 6 frames, as the public GNS evaluation does.
+
+Writes OUT/columns/: cases.csv, summary.json, runout_1to1.png, error_heatmaps.png,
+evolution_p25.png, evolution_p50.png, evolution_p75.png and gns/<case>/ trajectories.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from runout.evaluate.column_figures import draw_error_heatmaps, draw_evolution, draw_runout_comparison
+from runout.evaluate.engines import EngineRun
+from runout.evaluate.model_card import model_card
+from runout.evaluate.mpm_cache import MpmCache
+from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_scene
+from runout.gns import load_simulator, rollout_trajectory
+from runout.metrics import absolute_percentage_error, coefficient_of_variation, normalised_runout, r_squared, runout_front
+from runout.trajectory import Trajectory, load_trajectory, save_trajectory
+
+PAPER_ASPECTS = (0.5, 1.0, 2.0)
+PAPER_PHIS = (0.0, 11.25, 22.5, 33.75, 45.0)  # degrees
+PAPER_COHESIONS = (10.0, 25.0, 40.0, 55.0, 70.0)  # kPa
+PERCENTILES = (25, 50, 75)  # error percentiles whose cases get a time-evolution figure
+CSV_COLUMNS = (
+    "case", "aspect", "phi_deg", "cohesion_kpa", "L0_m", "Lf_mpm_m", "Lf_gns_m",
+    "runout_norm_mpm", "runout_norm_gns", "ape_percent", "frames", "gns_wall_s", "mpm_key",
+)
+
+
+@dataclass
+class ColumnGrid:
+    aspects: tuple[float, ...] = PAPER_ASPECTS
+    phis: tuple[float, ...] = PAPER_PHIS
+    cohesions: tuple[float, ...] = PAPER_COHESIONS
+    frames: int = 600
+    scale: float = 1.0
+    examples: Path = EXAMPLES
+
+    def cases(self) -> list[ColumnCase]:
+        return [ColumnCase(a, p, c) for a, p, c in itertools.product(self.aspects, self.phis, self.cohesions)]
+
+
+@dataclass
+class CaseResult:
+    case: str
+    aspect: float
+    phi_deg: float
+    cohesion_kpa: float
+    L0_m: float
+    Lf_mpm_m: float
+    Lf_gns_m: float
+    runout_norm_mpm: float
+    runout_norm_gns: float
+    ape_percent: float
+    frames: int
+    gns_wall_s: float
+    mpm_key: str
+
+
+def run_columns(model: Path, out: Path, grid: ColumnGrid, run: EngineRun) -> dict:
+    """Run the study; returns the summary written to OUT/columns/summary.json."""
+    folder = Path(out) / "columns"
+    cases = grid.cases()
+    scenes = [column_scene(grid.examples, c, grid.frames, grid.scale) for c in cases]
+    mpm_dirs = run.cache.ensure(scenes, run.device, run.progress)
+    simulator = load_simulator(model, run.device)
+    rows = []
+    for case, scene, mpm_dir in tqdm(list(zip(cases, scenes, mpm_dirs)), desc="GNS columns", disable=not run.progress):
+        truth = load_trajectory(mpm_dir)
+        start = time.perf_counter()
+        predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None)
+        wall = time.perf_counter() - start
+        save_trajectory(predicted, folder / "gns" / case.name, simulator.schema.material_width)
+        rows.append(case_result(case, truth, predicted, scene.domain.point_spacing / 2, wall, mpm_dir.name))
+    write_csv(rows, folder / "cases.csv")
+    summary = summarise(rows, grid, model)
+    draw_outputs(rows, folder, run.cache, scenes)
+    (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def case_result(case: ColumnCase, truth: Trajectory, predicted: Trajectory, edge: float, wall: float, key: str) -> CaseResult:
+    """edge: half the point spacing (m), added to the largest x to get the material's front."""
+    l0 = runout_front(truth, 0) + edge
+    lf_mpm, lf_gns = runout_front(truth, -1) + edge, runout_front(predicted, -1) + edge
+    n_mpm, n_gns = normalised_runout(l0, lf_mpm), normalised_runout(l0, lf_gns)
+    return CaseResult(
+        case.name, case.aspect, case.phi, case.cohesion, l0, lf_mpm, lf_gns, n_mpm, n_gns,
+        float(absolute_percentage_error(n_gns, n_mpm)), predicted.n_frames, wall, key,
+    )
+
+
+def write_csv(rows: list[CaseResult], path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow(asdict(row))
+
+
+def aspect_statistics(rows: list[CaseResult]) -> list[dict]:
+    """Per aspect ratio: number of cases, mean and CV of the error (%), R² of L^n."""
+    stats = []
+    for aspect in sorted({r.aspect for r in rows}):
+        group = [r for r in rows if r.aspect == aspect]
+        ape = np.array([r.ape_percent for r in group])
+        stats.append({
+            "aspect": aspect,
+            "cases": len(group),
+            "mean_ape_percent": float(np.nanmean(ape)),
+            "cv_ape": coefficient_of_variation(ape) if len(group) > 1 else float("nan"),
+            "r2": r_squared([r.runout_norm_gns for r in group], [r.runout_norm_mpm for r in group]),
+        })
+    return stats
+
+
+def percentile_cases(rows: list[CaseResult]) -> dict[int, CaseResult]:
+    """The case at each error percentile: rank round(q / 100 x (n - 1)) of the sorted errors."""
+    ranked = sorted(rows, key=lambda r: (np.nan_to_num(r.ape_percent, nan=np.inf), r.case))
+    return {q: ranked[round(q / 100 * (len(ranked) - 1))] for q in PERCENTILES}
+
+
+def summarise(rows: list[CaseResult], grid: ColumnGrid, model: Path) -> dict:
+    ape = np.array([r.ape_percent for r in rows])
+    return {
+        "study": "columns",
+        "model": model_card(model).to_dict(),
+        "grid": {"aspects": list(grid.aspects), "phis_deg": list(grid.phis), "cohesions_kpa": list(grid.cohesions),
+                 "frames": grid.frames, "scale": grid.scale},
+        "cases": len(rows),
+        "mean_ape_percent": float(np.nanmean(ape)),
+        "median_ape_percent": float(np.nanmedian(ape)),
+        "by_aspect": aspect_statistics(rows),
+        "percentile_cases": {str(q): asdict(r) for q, r in percentile_cases(rows).items()},
+        "gns_wall_s_total": float(sum(r.gns_wall_s for r in rows)),
+    }
+
+
+def draw_outputs(rows: list[CaseResult], folder: Path, cache: MpmCache, scenes) -> None:
+    stats = aspect_statistics(rows)
+    draw_runout_comparison(rows, stats, folder / "runout_1to1.png")
+    draw_error_heatmaps(rows, stats, folder / "error_heatmaps.png")
+    by_name = {s.name: s for s in scenes}
+    for q, row in percentile_cases(rows).items():
+        truth = cache.load(by_name[row.case], progress=False)
+        predicted = load_trajectory(folder / "gns" / row.case)
+        draw_evolution(truth, predicted, row, q, folder / f"evolution_p{q}.png")

@@ -1,0 +1,92 @@
+"""Velocity- and physical-space error diagnostics of one column case (paper §5.1.1).
+
+At chosen frames (80, 200 and the last), each soil point's GNS velocity v_pred and MPM
+velocity v_true (m/s, over the frame interval ending there) give the error |v_pred - v_true|.
+The training velocity distribution is the model's own normalisation statistics (vel_mean,
+vel_std in m per frame, converted to m/s); a point lies outside the k-sigma ellipse when
+((v_x - m_x) / s_x)^2 + ((v_y - m_y) / s_y)^2 > k^2 (the statistics are per axis, so the
+ellipses are axis-aligned).
+
+Writes OUT/diagnostics/: summary.json and velocity_diagnostics.png (rows: velocity space
+coloured by error, positions coloured by error, positions coloured by speed).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from runout.evaluate.diagnostics_figures import draw_diagnostics
+from runout.evaluate.engines import EngineRun
+from runout.evaluate.model_card import model_card
+from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_scene
+from runout.gns import load_simulator, rollout_trajectory
+from runout.metrics import velocities
+from runout.trajectory import Trajectory, save_trajectory
+
+PAPER_CASE = ColumnCase(aspect=2.0, phi=11.25, cohesion=10.0)
+PAPER_FRAMES = (80, 200)  # and the last frame
+
+
+def diagnostic_frames(n_frames: int) -> list[int]:
+    """Frames 80 and 200 when the run has them, and the last frame (all >= 1)."""
+    return sorted({f for f in PAPER_FRAMES if f < n_frames} | {n_frames - 1})
+
+
+def training_velocity(simulator, frame_dt: float) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and standard deviation (m/s) of the training velocities, per axis."""
+    return np.asarray(simulator.stats.vel_mean) / frame_dt, np.asarray(simulator.stats.vel_std) / frame_dt
+
+
+def sigma_distance(v: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """[N] how many standard deviations each velocity [N, 2] lies from the training mean
+    (the k of the axis-aligned k-sigma ellipse through it)."""
+    return np.sqrt((((v - mean) / std) ** 2).sum(axis=1))
+
+
+def frame_statistics(truth: Trajectory, predicted: Trajectory, frame: int, mean, std) -> dict:
+    soil = truth.soil
+    v_pred, v_true = velocities(predicted, frame)[soil], velocities(truth, frame)[soil]
+    error = np.linalg.norm(v_pred - v_true, axis=1)  # m/s
+    outside = sigma_distance(v_pred, mean, std) > 2.0
+    return {
+        "frame": frame,
+        "median_error_m_s": float(np.median(error)),
+        "p90_error_m_s": float(np.percentile(error, 90)),
+        "share_outside_2sigma": float(outside.mean()),
+        "mean_error_inside_2sigma_m_s": float(error[~outside].mean()) if (~outside).any() else None,
+        "mean_error_outside_2sigma_m_s": float(error[outside].mean()) if outside.any() else None,
+        "speed_error_correlation": _correlation(np.linalg.norm(v_pred, axis=1), error),
+    }
+
+
+def _correlation(a: np.ndarray, b: np.ndarray) -> float | None:
+    """Pearson correlation, None when either side does not vary."""
+    if a.std() == 0 or b.std() == 0:
+        return None
+    return float(np.corrcoef(a, b)[0, 1])
+
+
+def run_diagnostics(model: Path, out: Path, run: EngineRun, case: ColumnCase = PAPER_CASE, frames: int = 600,
+                    scale: float = 1.0, examples: Path = EXAMPLES) -> dict:
+    """Run the diagnostics; returns the summary written to OUT/diagnostics/summary.json."""
+    folder = Path(out) / "diagnostics"
+    scene = column_scene(examples, case, frames, scale)
+    truth = run.cache.load(scene, run.device, run.progress)
+    simulator = load_simulator(model, run.device)
+    predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None, progress=run.progress)
+    save_trajectory(predicted, folder / "gns", simulator.schema.material_width)
+    mean, std = training_velocity(simulator, truth.frame_dt)
+    chosen = diagnostic_frames(truth.n_frames)
+    draw_diagnostics(truth, predicted, chosen, mean, std, case, folder / "velocity_diagnostics.png")
+    summary = {
+        "study": "diagnostics",
+        "model": model_card(model).to_dict(),
+        "case": {"aspect": case.aspect, "phi_deg": case.phi, "cohesion_kpa": case.cohesion, "frames": frames, "scale": scale},
+        "training_velocity_m_s": {"mean": mean.tolist(), "std": std.tolist()},
+        "frames": [frame_statistics(truth, predicted, f, mean, std) for f in chosen],
+    }
+    (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary

@@ -1,0 +1,48 @@
+"""What a model is and how much training made it, for every study's summary and the report."""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from runout.gns.checkpoint import read_checkpoint
+
+
+@dataclass
+class ModelCard:
+    path: str
+    sha256: str  # first 12 hex digits of the checkpoint file
+    steps: int | None  # optimiser steps of this run (None: the file was saved outside training)
+    base_steps: int  # steps of the model it was fine-tuned from (0 for a model trained from scratch)
+    training_data: str | None
+    initialised_from: str | None
+    material_features: list[str]
+    parameters: int
+    network: dict
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    def sentence(self) -> str:
+        trained = "untrained (saved without a training run)" if self.steps is None else f"{self.steps:,} training steps"
+        base = f" after {self.base_steps:,} base steps" if self.base_steps else ""
+        data = f" on {self.training_data}" if self.training_data else ""
+        return (f"`{self.path}` (sha256 {self.sha256}…, {self.parameters:,} parameters, material inputs "
+                f"[{', '.join(self.material_features)}]): {trained}{base}{data}.")
+
+
+def model_card(path: Path) -> ModelCard:
+    ckpt = read_checkpoint(path)
+    train = ckpt.get("train", {})
+    return ModelCard(
+        path=str(path),
+        sha256=hashlib.sha256(Path(path).read_bytes()).hexdigest()[:12],
+        steps=ckpt.get("step"),
+        base_steps=int(train.get("lr_step_offset", 0)),
+        training_data=train.get("data"),
+        initialised_from=train.get("init"),
+        material_features=list(ckpt["schema"]["material_features"]),
+        parameters=sum(v.numel() for k, v in ckpt["model"].items() if not k.endswith(("_mean", "_scale"))),
+        network=dict(ckpt["network"]),
+    )

@@ -1,0 +1,57 @@
+"""MPM trajectories cached on disk, keyed by a hash of the scene's TOML.
+
+The MPM is the slow, deterministic half of every comparison, so each trajectory is written
+once to CACHE/<key>/ (trajectory.npz, metadata.json and the scene.toml it came from) and
+reused by reruns and by every other model. Missing scenes run together in ONE batched
+`runout.mpm.simulate` call. The key covers the whole scene (domain, time, materials,
+regions, name) but not the solver's code: clear the cache after changing the MPM.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import platform
+from dataclasses import dataclass
+from pathlib import Path
+
+from runout.mpm import simulate
+from runout.scene import Scene, scene_to_toml
+from runout.trajectory import Trajectory, load_trajectory, save_trajectory
+
+DEFAULT_CACHE = Path.home() / ".cache" / "runout" / "mpm"
+
+
+def scene_key(scene: Scene) -> str:
+    """First 20 hex digits of the sha256 of the scene's TOML text."""
+    return hashlib.sha256(scene_to_toml(scene).encode()).hexdigest()[:20]
+
+
+@dataclass
+class MpmCache:
+    root: Path = DEFAULT_CACHE
+    simulated: int = 0  # scenes this object has sent to the MPM (the rest were cache hits)
+
+    def path(self, scene: Scene) -> Path:
+        return Path(self.root) / scene_key(scene)
+
+    def has(self, scene: Scene) -> bool:
+        return (self.path(scene) / "metadata.json").is_file()
+
+    def ensure(self, scenes: list[Scene], device: str = "cpu", progress: bool = True) -> list[Path]:
+        """Folders of every scene's MPM trajectory; the missing ones are run in one batch."""
+        missing = list({scene_key(s): s for s in scenes if not self.has(s)}.values())
+        if missing:
+            for scene, traj in zip(missing, simulate(missing, device=device, progress=progress)):
+                self._store(scene, traj, device)
+            self.simulated += len(missing)
+        return [self.path(s) for s in scenes]
+
+    def load(self, scene: Scene, device: str = "cpu", progress: bool = True) -> Trajectory:
+        """The scene's MPM trajectory, run first if it is not cached."""
+        return load_trajectory(self.ensure([scene], device, progress)[0])
+
+    def _store(self, scene: Scene, traj: Trajectory, device: str) -> None:
+        folder = self.path(scene)
+        traj.info.update({"host": platform.node(), "device": str(device), "scene_key": scene_key(scene)})
+        save_trajectory(traj, folder)
+        (folder / "scene.toml").write_text(scene_to_toml(scene))

@@ -1,0 +1,61 @@
+"""The paper's test scenes, built from the example scene files, optionally shrunk.
+
+`--scale s` shrinks a scene's domain and polygons by s (cell size and point spacing stay),
+so the same study runs on a few hundred points in a test; scale 1 is the paper's geometry.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+from runout.errors import InputError
+from runout.scene import Scene, load_scene
+
+EXAMPLES = Path(__file__).resolve().parents[3] / "examples"  # the repository's examples/ (src layout)
+COLUMN_ASPECTS = (0.5, 1.0, 2.0)  # H0 / L0 of examples/column_a{a}.toml
+COLUMN_MATERIAL = "soil"
+
+
+def example_scene(examples: Path, name: str) -> Scene:
+    path = Path(examples) / name
+    if not path.is_file():
+        raise InputError(f"{path}: no such example scene; pass --examples with the folder holding {name}.")
+    return load_scene(path)
+
+
+def scaled(scene: Scene, scale: float) -> Scene:
+    """The scene with its domain (rounded up to whole cells) and polygons times `scale`."""
+    if not 0 < scale <= 1:
+        raise InputError(f"--scale {scale:g} must be in (0, 1].")
+    if scale == 1:
+        return scene
+    cell = scene.domain.cell_size
+    whole = lambda length: max(4, math.ceil(length * scale / cell - 1e-9)) * cell  # noqa: E731  (m)
+    domain = replace(scene.domain, width=whole(scene.domain.width), height=whole(scene.domain.height))
+    regions = tuple(replace(r, polygon=tuple((x * scale, y * scale) for x, y in r.polygon)) for r in scene.regions)
+    return replace(scene, domain=domain, regions=regions)
+
+
+@dataclass(frozen=True)
+class ColumnCase:
+    aspect: float  # H0 / L0
+    phi: float  # degrees
+    cohesion: float  # kPa
+
+    @property
+    def name(self) -> str:
+        return f"column_a{self.aspect:g}_phi{self.phi:g}_c{self.cohesion:g}"
+
+
+def column_scene(examples: Path, case: ColumnCase, frames: int, scale: float = 1.0) -> Scene:
+    """examples/column_a{a}.toml with the case's phi and c, `frames` frames, shrunk by `scale`."""
+    if case.aspect not in COLUMN_ASPECTS:
+        allowed = ", ".join(f"{a:g}" for a in COLUMN_ASPECTS)
+        raise InputError(f"aspect ratio {case.aspect:g} has no example column; choose from {allowed}.")
+    base = example_scene(examples, f"column_a{case.aspect:g}.toml")
+    scene = scaled(base, scale).with_materials(
+        **{COLUMN_MATERIAL: {"friction_angle": float(case.phi), "cohesion": float(case.cohesion)}}
+    )
+    return replace(scene.with_frames(frames), name=case.name)

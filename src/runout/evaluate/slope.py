@@ -1,0 +1,88 @@
+"""Four-layer slope study (paper §5.1.2): runout on each side of the centre line, material
+and displacement fields side by side, displacement-error growth and the wall time of both
+engines.
+
+Runout on a side is the distance (m) from the mound's axis (x = 500 m) to the
+outermost soil point; its error is |L_GNS - L_MPM| / L_MPM x 100 (%). The displacement
+error of a point is the distance (m) between its GNS and MPM positions at a frame.
+
+Writes OUT/slope/: summary.json, fields_materials.png, fields_displacement.png,
+displacement_error.png and gns/ (the GNS trajectory).
+"""
+
+from __future__ import annotations
+
+import json
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+from runout.evaluate.engines import EngineRun
+from runout.evaluate.model_card import model_card
+from runout.evaluate.scenes import EXAMPLES, example_scene, scaled
+from runout.evaluate.slope_figures import draw_displacement_error, draw_fields
+from runout.gns import load_simulator, rollout_trajectory
+from runout.metrics import absolute_percentage_error, displacement_error, side_runouts
+from runout.trajectory import Trajectory, save_trajectory
+
+SLOPE_SCENE = "four_layer_slope.toml"
+PAPER_FRAMES = (0, 80, 180)  # and the last frame
+
+
+def snapshot_frames(n_frames: int) -> list[int]:
+    """The paper's frames 0, 80, 180 that the run has, and its last frame."""
+    return sorted({f for f in PAPER_FRAMES if f < n_frames} | {n_frames - 1})
+
+
+def run_slope(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLES, frames: int | None = None,
+              scale: float = 1.0, rerun_mpm: bool = False) -> dict:
+    """Run the study; returns the summary written to OUT/slope/summary.json."""
+    folder = Path(out) / "slope"
+    scene = scaled(example_scene(examples, SLOPE_SCENE), scale)
+    scene = scene.with_frames(frames) if frames is not None else scene
+    if rerun_mpm:
+        run.cache.path(scene).joinpath("metadata.json").unlink(missing_ok=True)
+    truth = run.cache.load(scene, run.device, run.progress)
+    simulator = load_simulator(model, run.device)
+    start = time.perf_counter()
+    predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None, progress=run.progress)
+    gns_wall = time.perf_counter() - start
+    save_trajectory(predicted, folder / "gns", simulator.schema.material_width)
+    summary = summarise(truth, predicted, mound_axis(truth), gns_wall, run.device, model)
+    draw_fields(truth, predicted, snapshot_frames(truth.n_frames), folder)
+    draw_displacement_error(truth, predicted, folder / "displacement_error.png")
+    (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def mound_axis(traj: Trajectory) -> float:
+    """x (m) halfway between the outermost soil points at rest (500 m for the paper's slope)."""
+    x = traj.positions[0, traj.soil, 0]
+    return float(x.min() + x.max()) / 2
+
+
+def summarise(truth: Trajectory, predicted: Trajectory, centre: float, gns_wall: float, device: str, model: Path) -> dict:
+    """centre: x (m) of the mound's axis, where the two sides' runouts are measured from."""
+    mpm_left, mpm_right = side_runouts(truth, centre)
+    gns_left, gns_right = side_runouts(predicted, centre)
+    error = displacement_error(predicted, truth)  # [T, S] m
+    info = truth.info
+    return {
+        "study": "slope",
+        "model": model_card(model).to_dict(),
+        "frames": predicted.n_frames,
+        "points": int(truth.soil.sum()),
+        "centre_m": centre,
+        "runout_left_m": {"mpm": mpm_left, "gns": gns_left, "ape_percent": float(absolute_percentage_error(gns_left, mpm_left))},
+        "runout_right_m": {"mpm": mpm_right, "gns": gns_right, "ape_percent": float(absolute_percentage_error(gns_right, mpm_right))},
+        "median_displacement_error_final_m": float(np.median(error[-1])),
+        "max_displacement_error_final_m": float(error[-1].max()),
+        "wall_time_s": {
+            "mpm": info.get("wall_time_s"), "mpm_batch_size": info.get("batch_size"),
+            "mpm_device": info.get("device"), "mpm_host": info.get("host"),
+            "gns": gns_wall, "gns_device": str(device), "gns_host": platform.node(),
+        },
+    }
+
