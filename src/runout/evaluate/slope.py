@@ -51,6 +51,7 @@ def run_slope(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLES,
     gns_wall = time.perf_counter() - start
     save_trajectory(predicted, folder / "gns", simulator.schema.material_width)
     summary = summarise(truth, predicted, mound_axis(truth), gns_wall, run.device, model)
+    summary["scale"] = scale
     draw_fields(truth, predicted, snapshot_frames(truth.n_frames), folder)
     draw_displacement_error(truth, predicted, folder / "displacement_error.png")
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))

@@ -1,0 +1,154 @@
+"""Data-size study (paper §6): fine-tune subsets of N training simulations from one model,
+under a fixed step budget and under a fixed epoch budget, and measure rollout errors on
+held-out simulations.
+
+A subset is the first N simulations of DATA/train.npz (with the full set's metadata, so
+every subset shares its normalisation). One epoch is one pass over every training window:
+sum over the subset's simulations of (frames - 6) windows, divided by the batch size and
+rounded up. The rollout error of a held-out simulation is its position MSE (m²) averaged
+over every frame of a rollout from its first 6 frames.
+
+Writes OUT/sensitivity/: data_N/ (subsets), steps_N/ and epochs_N/ (training runs; a rerun
+resumes or reuses them), rollouts.csv, summary.json, rollout_mse.png and loss_history.png.
+"""
+
+from __future__ import annotations
+
+import csv
+import itertools
+import json
+import math
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from runout.dataset import iter_simulations, read_metadata, write_simulations
+from runout.errors import InputError
+from runout.evaluate.model_card import model_card
+from runout.evaluate.sensitivity_figures import draw_loss_histories, draw_rollout_mse
+from runout.gns import load_simulator, rollout_trajectory
+from runout.metrics import position_mse
+from runout.train import CHECKPOINT, TrainConfig, train
+from runout.trajectory import trajectory_from_features
+
+PAPER_SIZES = (10, 50, 100, 250, 500, 750, 1000)
+BUDGETS = ("steps", "epochs")
+HISTORY = 6  # input frames of a GNS window
+
+
+@dataclass
+class SensitivityConfig:
+    data: Path  # dataset folder: train.npz, metadata.json and the held-out split
+    init: Path  # checkpoint every subset is fine-tuned from
+    sizes: tuple[int, ...] = PAPER_SIZES
+    steps: int = 4_500_000  # fixed-step budget
+    epochs: int = 10  # fixed-epoch budget
+    held_out: int = 20  # held-out simulations rolled out per model
+    split: str = "test"
+    batch_size: int = 2
+    device: str = "cpu"
+    progress: bool = True
+
+    def check(self) -> None:
+        if not self.sizes or min(self.sizes) < 1:
+            raise InputError(f"--sizes {','.join(map(str, self.sizes))} must be positive whole numbers.")
+        for name, value in (("--steps", self.steps), ("--epochs", self.epochs), ("--held-out", self.held_out)):
+            if value < 1:
+                raise InputError(f"{name} = {value} must be a positive whole number.")
+
+
+def run_sensitivity(cfg: SensitivityConfig, out: Path) -> dict:
+    """Run the study; returns the summary written to OUT/sensitivity/summary.json."""
+    cfg.check()
+    folder = Path(out) / "sensitivity"
+    meta = read_metadata(cfg.data)
+    held_out = held_out_trajectories(cfg, meta)
+    rows, runs = [], {}
+    for size, budget in itertools.product(cfg.sizes, BUDGETS):
+        subset = write_subset(cfg.data, folder / f"data_{size}", size)
+        steps = cfg.steps if budget == "steps" else cfg.epochs * steps_per_epoch(subset, cfg.batch_size)
+        run_dir = fine_tune(cfg, subset, folder / f"{budget}_{size}", steps)
+        runs[(budget, size)] = run_dir
+        rows += [{"budget": budget, "size": size, "steps": steps, "held_out": k, "rollout_mse_m2": mse}
+                 for k, mse in enumerate(rollout_errors(run_dir / CHECKPOINT, held_out, cfg))]
+    write_rows(rows, folder / "rollouts.csv")
+    summary = summarise(rows, cfg)
+    draw_rollout_mse(summary["results"], folder / "rollout_mse.png")
+    draw_loss_histories(runs, folder / "loss_history.png")
+    (folder / "summary.json").write_text(json.dumps(summary, indent=1))
+    return summary
+
+
+def held_out_trajectories(cfg: SensitivityConfig, meta: dict) -> list:
+    sims = itertools.islice(iter_simulations(Path(cfg.data) / f"{cfg.split}.npz"), cfg.held_out)
+    return [trajectory_from_features(p, t, m, meta.get("dt", 0.0375), meta["bounds"], f"{cfg.split}_{k}")
+            for k, (p, t, m) in enumerate(sims)]
+
+
+def write_subset(data: Path, folder: Path, size: int) -> Path:
+    """folder/train.npz with the first `size` training simulations, and the full metadata."""
+    if (folder / "train.npz").is_file():
+        return folder
+    sims = list(itertools.islice(iter_simulations(Path(data) / "train.npz"), size))
+    if len(sims) < size:
+        raise InputError(f"--sizes asks for {size} simulations but {Path(data) / 'train.npz'} holds {len(sims)}.")
+    folder.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(Path(data) / "metadata.json", folder / "metadata.json")
+    write_simulations(folder / "train.npz", sims)
+    return folder
+
+
+def steps_per_epoch(subset: Path, batch_size: int) -> int:
+    windows = sum(p.shape[0] - HISTORY for p, _, _ in iter_simulations(subset / "train.npz"))
+    return max(1, math.ceil(windows / batch_size))
+
+
+def fine_tune(cfg: SensitivityConfig, subset: Path, run_dir: Path, steps: int) -> Path:
+    """Fine-tune cfg.init on the subset to `steps` steps (resuming a run already there)."""
+    train(TrainConfig(
+        data=subset, out=run_dir, steps=steps, batch_size=cfg.batch_size, device=cfg.device, init=cfg.init,
+        resume=(run_dir / CHECKPOINT).is_file(), valid_every=0,
+        log_every=max(1, min(100, steps // 50)), save_every=max(1, min(10_000, steps // 10)),
+    ))
+    return run_dir
+
+
+def rollout_errors(checkpoint: Path, held_out: list, cfg: SensitivityConfig) -> list[float]:
+    """Position MSE (m²) averaged over the frames of each held-out rollout."""
+    simulator = load_simulator(checkpoint, cfg.device)
+    errors = []
+    for truth in tqdm(held_out, desc=f"rollouts {checkpoint.parent.name}", disable=not cfg.progress):
+        with torch.no_grad():
+            predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None)
+        errors.append(float(position_mse(predicted, truth).mean()))
+    return errors
+
+
+def write_rows(rows: list[dict], path: Path) -> None:
+    with path.open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=("budget", "size", "steps", "held_out", "rollout_mse_m2"))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def summarise(rows: list[dict], cfg: SensitivityConfig) -> dict:
+    results = []
+    for budget, size in itertools.product(BUDGETS, cfg.sizes):
+        mse = np.array([r["rollout_mse_m2"] for r in rows if r["budget"] == budget and r["size"] == size])
+        steps = next(r["steps"] for r in rows if r["budget"] == budget and r["size"] == size)
+        p25, median, p75 = np.percentile(mse, [25, 50, 75])
+        results.append({"budget": budget, "size": size, "steps": steps, "median_mse_m2": float(median),
+                        "p25_mse_m2": float(p25), "p75_mse_m2": float(p75), "held_out": len(mse)})
+    return {
+        "study": "sensitivity",
+        "model": model_card(cfg.init).to_dict(),
+        "data": str(cfg.data),
+        "split": cfg.split,
+        "fixed_steps": cfg.steps,
+        "fixed_epochs": cfg.epochs,
+        "results": results,
+    }
