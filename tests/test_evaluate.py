@@ -1,0 +1,218 @@
+import csv
+import json
+import shutil
+
+import numpy as np
+import pytest
+import torch
+from typer.testing import CliRunner
+
+import runout.evaluate.mpm_cache as mpm_cache
+from runout.cli import app
+from runout.errors import InputError
+from runout.evaluate import ColumnCase, MpmCache, column_scene, scene_key
+from runout.evaluate.columns import CSV_COLUMNS
+from runout.evaluate.diagnostics import sigma_distance
+from runout.evaluate.inverse_study import spec_text
+from runout.evaluate.scenes import EXAMPLES
+from runout.gns import FeatureSchema, NetworkConfig, Normalisation, Simulator, save_checkpoint
+from runout.inverse import load_inverse_spec
+from runout.metrics import (
+    absolute_percentage_error, coefficient_of_variation, displacement_error, normalised_runout, r_squared,
+    runout_front, side_runouts,
+)
+from runout.scene import Material
+from runout.trajectory import Trajectory
+from test_gns_synthetic import write_dataset
+
+torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
+
+STATS = Normalisation((0.0, -0.01), (0.02, 0.03), (0.0, -1e-3), (2e-3, 3e-3), 2.5e-3)  # m/frame, m/frame^2
+COARSE = ["--frames", "12", "--no-progress"]
+COLUMN_GRID = ["--aspects", "1,2", "--phis", "22.5", "--cohesions", "25", "--scale", "0.2"]
+
+
+def tiny_model(path, materials=("tan_phi", "c_over_100kPa")):
+    torch.manual_seed(0)
+    return save_checkpoint(path, Simulator(FeatureSchema(material_features=materials), STATS, 4.6, NetworkConfig(16, 16, 2, 2)))
+
+
+def invoke(args):
+    return CliRunner().invoke(app, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def studies(tmp_path_factory):
+    """A tiny model, and the columns, slope and diagnostics studies run on it (coarse)."""
+    root = tmp_path_factory.mktemp("evaluate")
+    model = tiny_model(root / "model.pt")
+    common = ["--model", model, "--out", root / "out", "--cache", root / "cache", *COARSE]
+    for args in (["columns", *COLUMN_GRID], ["slope", "--scale", "0.2"],
+                 ["diagnostics", "--aspect", "1", "--phi", "22.5", "--c", "25", "--scale", "0.2"]):
+        result = invoke(["evaluate", *args, *common])
+        assert result.exit_code == 0, result.output
+    return root
+
+
+def line(positions) -> Trajectory:
+    """Soil points along x with the given positions [T, N] (m), y = 1 m."""
+    positions = np.asarray(positions, dtype=np.float32)
+    xy = np.stack([positions, np.ones_like(positions)], axis=-1)
+    n = positions.shape[1]
+    return Trajectory(xy, np.full(n, 6), np.zeros(n, dtype=np.int64), [Material("soil")], 0.0375, np.array([[0, 100], [0, 10]]))
+
+
+# ----------------------------------------------------------------------------- metrics
+
+
+def test_normalised_runout_is_the_relative_growth_of_the_front():
+    assert normalised_runout(150.0, 300.0) == pytest.approx(1.0)
+    assert normalised_runout(100.0, 186.3) == pytest.approx(0.863)
+
+
+def test_absolute_percentage_error_cv_and_r2_on_known_numbers():
+    np.testing.assert_allclose(absolute_percentage_error([110.0, 90.0, 0.863], [100.0, 100.0, 0.848]), [10.0, 10.0, 1.7688679], rtol=1e-6)
+    assert np.isnan(absolute_percentage_error(1.0, 0.0))
+    assert coefficient_of_variation([1.0, 3.0]) == pytest.approx(0.5)  # population std 1 over mean 2
+    assert r_squared([1.0, 2.0, 4.0], [1.0, 2.0, 3.0]) == pytest.approx(0.5)  # 1 - 1 / 2
+    assert r_squared([2.0, 2.0, 2.0], [1.0, 2.0, 3.0]) == pytest.approx(0.0)
+    assert r_squared([3.0, 2.0, 1.0], [1.0, 2.0, 3.0]) == pytest.approx(-3.0)  # not a fitted line's R²
+
+
+def test_fronts_side_runouts_and_displacement_errors():
+    truth = line([[40.0, 50.0, 60.0], [30.0, 50.0, 75.0]])
+    predicted = line([[40.0, 50.0, 60.0], [32.0, 50.0, 72.0]])
+    assert runout_front(truth, 0) == 60.0 and runout_front(truth) == 75.0
+    assert side_runouts(truth, 50.0) == (20.0, 25.0)
+    np.testing.assert_allclose(displacement_error(predicted, truth), [[0, 0, 0], [2, 0, 3]])
+
+
+def test_sigma_distance_places_points_on_the_ellipses():
+    v = np.array([[1.0, -2.0], [3.0, -2.0], [1.0, 2.0]])
+    np.testing.assert_allclose(sigma_distance(v, np.array([1.0, -2.0]), np.array([2.0, 4.0])), [0.0, 1.0, 1.0])
+
+
+# ----------------------------------------------------------------------------- MPM cache
+
+
+def test_missing_scenes_run_in_one_batch_and_are_keyed_by_their_toml(tmp_path, monkeypatch):
+    calls = []
+    real = mpm_cache.simulate
+    monkeypatch.setattr(mpm_cache, "simulate", lambda scenes, **kw: calls.append(len(scenes)) or real(scenes, **kw))
+    a = column_scene(EXAMPLES, ColumnCase(1.0, 22.5, 25.0), 8, 0.1)
+    b = column_scene(EXAMPLES, ColumnCase(1.0, 22.5, 40.0), 8, 0.1)
+    cache = MpmCache(tmp_path)
+    paths = cache.ensure([a, b, a], progress=False)
+    assert calls == [2] and cache.simulated == 2
+    assert paths[0] == paths[2] != paths[1] and scene_key(a) != scene_key(b)
+    assert (paths[0] / "scene.toml").is_file() and cache.load(a).n_frames == 8
+
+
+def test_a_second_columns_run_reads_the_mpm_from_the_cache(studies, tmp_path, monkeypatch):
+    def no_mpm(*args, **kwargs):
+        raise AssertionError("the MPM ran although every scene is cached")
+
+    monkeypatch.setattr(mpm_cache, "simulate", no_mpm)
+    args = ["evaluate", "columns", *COLUMN_GRID, *COARSE, "--model", studies / "model.pt", "--out", tmp_path, "--cache", studies / "cache"]
+    result = invoke(args)
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "columns" / "cases.csv").read_text() .count("\n") == 3
+
+
+# ----------------------------------------------------------------------------- studies
+
+
+def test_columns_writes_every_case_with_its_runouts_and_errors(studies):
+    folder = studies / "out" / "columns"
+    with (folder / "cases.csv").open() as f:
+        rows = list(csv.DictReader(f))
+    assert tuple(rows[0]) == CSV_COLUMNS and len(rows) == 2
+    for row in rows:
+        l0, lf, n = float(row["L0_m"]), float(row["Lf_mpm_m"]), float(row["runout_norm_mpm"])
+        assert n == pytest.approx((lf - l0) / l0)
+        expected = abs(float(row["runout_norm_gns"]) - n) / n * 100
+        assert float(row["ape_percent"]) == pytest.approx(expected)
+    assert {float(r["L0_m"]) for r in rows} == {30.0, 20.0}  # columns 150 and 100 m wide, scale 0.2
+    summary = json.loads((folder / "summary.json").read_text())
+    assert [b["aspect"] for b in summary["by_aspect"]] == [1.0, 2.0] and summary["model"]["steps"] is None
+    for name in ("runout_1to1.png", "error_heatmaps.png", "evolution_p25.png", "evolution_p50.png", "evolution_p75.png"):
+        assert (folder / name).stat().st_size > 1000
+
+
+def test_slope_reports_both_sides_wall_times_and_figures(studies):
+    folder = studies / "out" / "slope"
+    s = json.loads((folder / "summary.json").read_text())
+    assert s["centre_m"] == pytest.approx(100.0) and s["frames"] == 12
+    assert s["runout_left_m"]["mpm"] > 0 and s["runout_right_m"]["gns"] > 0
+    assert s["wall_time_s"]["mpm"] > 0 and s["wall_time_s"]["gns"] > 0
+    for name in ("fields_materials.png", "fields_displacement.png", "displacement_error.png"):
+        assert (folder / name).stat().st_size > 1000
+
+
+def test_diagnostics_use_the_models_training_velocities(studies):
+    s = json.loads((studies / "out" / "diagnostics" / "summary.json").read_text())
+    np.testing.assert_allclose(s["training_velocity_m_s"]["std"], np.array(STATS.vel_std) / 0.0375)
+    assert [f["frame"] for f in s["frames"]] == [11]
+    assert (studies / "out" / "diagnostics" / "velocity_diagnostics.png").is_file()
+
+
+def test_inverse_spec_keeps_the_papers_bounds_and_points_at_the_mpm_target(tmp_path):
+    import tomllib
+
+    example = tomllib.loads((EXAMPLES / "dam_inverse.toml").read_text())
+    shutil.copyfile(EXAMPLES / "dam.toml", tmp_path / "scene.toml")
+    (tmp_path / "spec.toml").write_text(spec_text(example, tmp_path / "target", 3))
+    spec = load_inverse_spec(tmp_path / "spec.toml")
+    bounds = {p.name: (p.lower, p.upper) for p in spec.free}
+    assert bounds == {"c[m1_downstream_lower]": (10.0, 100.0), "c[m2_core]": (99.0, 101.0), "phi[m3_downstream_upper]": (5.0, 50.0)}
+    assert spec.target.trajectory == tmp_path / "target" and spec.optimiser.max_iterations == 3
+
+
+def test_sensitivity_fine_tunes_each_subset_under_both_budgets(tmp_path):
+    data = write_dataset(tmp_path / "data", frames=10, n_train=2, width=1)
+    shutil.copyfile(data / "valid.npz", data / "test.npz")
+    model = tiny_model(tmp_path / "base.pt", ("tan_phi",))
+    args = ["evaluate", "sensitivity", "--data", data, "--init", model, "--out", tmp_path / "out", "--sizes", "1,2",
+            "--steps", "2", "--epochs", "1", "--held-out", "1", "--no-progress"]
+    result = invoke(args)
+    assert result.exit_code == 0, result.output
+    s = json.loads((tmp_path / "out" / "sensitivity" / "summary.json").read_text())
+    steps = {(r["budget"], r["size"]): r["steps"] for r in s["results"]}
+    assert steps == {("steps", 1): 2, ("steps", 2): 2, ("epochs", 1): 2, ("epochs", 2): 4}  # 4 windows per simulation, batch 2
+    assert all(r["p25_mse_m2"] <= r["median_mse_m2"] <= r["p75_mse_m2"] for r in s["results"])
+    assert (tmp_path / "out" / "sensitivity" / "rollout_mse.png").is_file()
+
+
+def test_report_names_the_model_and_links_existing_figures(studies, tmp_path):
+    doc = tmp_path / "docs" / "results.md"
+    result = invoke(["evaluate", "report", "--out", studies / "out", "--doc", doc])
+    assert result.exit_code == 0, result.output
+    text = doc.read_text()
+    assert "untrained (saved without a training run)" in text and "shrunk: not the paper's geometry" in text
+    assert "| aspect a | cases | mean error (%) | CV | R² |" in text and "Not run (`runout evaluate inverse`)." in text
+    links = [part.split(")")[0] for part in text.split("](")[1:]]
+    assert links and all((doc.parent / link).is_file() for link in links)
+
+
+# ----------------------------------------------------------------------------- bad input
+
+
+@pytest.mark.parametrize("args, message", [
+    (["columns", "--aspects", "3"], "aspect ratio 3 has no example column; choose from 0.5, 1, 2."),
+    (["columns", "--phis", "ten"], "--phis 'ten' must be numbers separated by commas, e.g. 0.5,1,2."),
+    (["columns", "--scale", "0"], "--scale 0 must be in (0, 1]."),
+    (["columns", "--phis", "75"], "<scene>: materials.soil.friction_angle = 75 is outside the allowed range [0, 60] degrees."),
+    (["slope", "--frames", "3"], "--frames 3 must be at least 8 (6 input frames and a rollout)."),
+])
+def test_bad_study_input_is_one_sentence(tmp_path, args, message):
+    model = tiny_model(tmp_path / "m.pt")
+    result = invoke(["evaluate", *args, "--model", model, "--out", tmp_path / "o", "--cache", tmp_path / "c", "--no-progress"])
+    assert isinstance(result.exception, InputError)
+    assert str(result.exception) == message
+
+
+def test_bad_sizes_and_an_empty_report_are_input_errors(tmp_path):
+    result = invoke(["evaluate", "sensitivity", "--data", tmp_path, "--init", tmp_path / "m.pt", "--out", tmp_path, "--sizes", "0,10"])
+    assert str(result.exception) == "--sizes '0,10' must be positive whole numbers, e.g. 10,50,100."
+    result = invoke(["evaluate", "report", "--out", tmp_path, "--doc", tmp_path / "r.md"])
+    assert isinstance(result.exception, InputError) and "holds no study results" in str(result.exception)
