@@ -29,12 +29,12 @@ from runout.scene import fill_points, save_scene, scene_from_dict
 from runout.trajectory import save_trajectory, trajectory_for_scene
 
 REPO = Path(__file__).resolve().parents[1]
-STEPS = 15  # rollout steps of the tiny problems
+STEPS = 10  # rollout steps of the tiny problems
 TRUE = {"left": {"friction_angle": 30.0, "cohesion": 20.0}, "right": {"friction_angle": 20.0, "cohesion": 40.0}}
 
 TOY_SCENE = {
     "domain": {"width": 60.0, "height": 40.0},
-    "time": {"frames": 21},
+    "time": {"frames": 16},
     "materials": {
         "left": {"friction_angle": 30.0, "cohesion": 20.0},  # the truth, TRUE
         "right": {"friction_angle": 20.0, "cohesion": 40.0},
@@ -148,8 +148,8 @@ def test_bad_spec_raises_one_sentence(toy, tmp_path, case):
 
 
 @pytest.mark.parametrize("frames, rollout_table, phrase", [
-    ("[10, 40]", "", "beyond the target trajectory's last frame 20"),
-    ("[10, 18]", "[rollout]\nsteps = 8", "beyond the rollout, whose last frame is 13"),
+    ("[10, 40]", "", "beyond the target trajectory's last frame 15"),
+    ("[10, 14]", "[rollout]\nsteps = 8", "beyond the rollout, whose last frame is 13"),
 ])
 def test_frames_beyond_the_rollout_are_refused(toy, frames, rollout_table, phrase):
     parameters = "[parameters.left]\nc = { lower = 1.0, upper = 80.0 }\n" + rollout_table
@@ -183,13 +183,13 @@ def test_observed_positions_file_and_front_weighting(toy, tmp_path):
     np.save(tmp_path / "observed.npy", final)
     spec_path = tmp_path / "spec.toml"
     spec_path.write_text(
-        'scene = "toy.toml"\n[target]\npositions = "observed.npy"\n[rollout]\nsteps = 15\n'
+        'scene = "toy.toml"\n[target]\npositions = "observed.npy"\n[rollout]\nsteps = 10\n'
         '[loss]\nweighting = "displacement"\nfront_weight = 4.0\n'
         '[parameters.left]\nc = { lower = 1.0, upper = 80.0 }\n'
     )
     spec = load_inverse_spec(spec_path)
     observation = load_observation(spec)
-    assert observation.frames == (20,) and observation.steps == 15
+    assert observation.frames == (15,) and observation.steps == 10
     weights = observation.weights(spec.loss)
     moved = np.linalg.norm(final - observation.initial, axis=1)
     soil = observation.particle_type != 3
