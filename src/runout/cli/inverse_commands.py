@@ -35,7 +35,7 @@ def invert(
     try:
         result = run_inversion(
             spec, out, model=model, device=device, starts=starts, engine=engine, fd_step=fd_step,
-            checkpoint=checkpoint, plot_iterations=plot_iterations, log=typer.echo,
+            checkpoint=checkpoint, plot_iterations=plot_iterations, log=typer.echo, progress=True,
         )
     except RolloutDiverged as exc:
         typer.secho(f"error: {exc} The history so far is in {out}.", err=True, fg=typer.colors.RED)

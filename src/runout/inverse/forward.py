@@ -14,10 +14,12 @@ from runout.inverse.problem import ForwardModel, InverseProblem, material_table
 from runout.inverse.spec import INPUT_FRAMES, InverseSpec
 
 
-def gns_forward(simulator: Simulator, observation: Observation, bounds: np.ndarray, checkpoint: bool = True) -> ForwardModel:
+def gns_forward(
+    simulator: Simulator, observation: Observation, bounds: np.ndarray, checkpoint: bool = True, progress: bool = False
+) -> ForwardModel:
     """A rollout from the scene at rest (INPUT_FRAMES identical frames) for observation.steps
     steps, each step recomputed in the backward pass when `checkpoint`; returns the frames
-    observed, [F, N, 2] (m)."""
+    observed, [F, N, 2] (m). `progress` shows a bar over the forward steps."""
     device = simulator.vel_mean.device
     initial = torch.tensor(observation.initial, dtype=torch.float32, device=device)
     window = initial[None].expand(INPUT_FRAMES, -1, -1)
@@ -25,7 +27,10 @@ def gns_forward(simulator: Simulator, observation: Observation, bounds: np.ndarr
     frames = torch.tensor(observation.frames, device=device)
 
     def forward(features: torch.Tensor) -> torch.Tensor:
-        positions = rollout(simulator, window, particle_type, features, observation.steps, bounds, checkpoint=checkpoint)
+        positions = rollout(
+            simulator, window, particle_type, features, observation.steps, bounds,
+            checkpoint=checkpoint, progress=progress,
+        )
         return positions[frames]
 
     return forward
@@ -37,7 +42,7 @@ def domain_bounds(spec: InverseSpec) -> np.ndarray:
 
 
 def inverse_problem(
-    spec: InverseSpec, observation: Observation, simulator: Simulator, checkpoint: bool = True
+    spec: InverseSpec, observation: Observation, simulator: Simulator, checkpoint: bool = True, progress: bool = False
 ) -> InverseProblem:
     """The GNS inverse problem; the model's own weights are frozen (no gradient wasted on them)."""
     if simulator.schema.history != INPUT_FRAMES:
@@ -51,7 +56,7 @@ def inverse_problem(
         table=material_table(spec.scene),
         material_id=observation.material_id,
         feature_width=simulator.schema.material_width,
-        forward=gns_forward(simulator, observation, domain_bounds(spec), checkpoint),
+        forward=gns_forward(simulator, observation, domain_bounds(spec), checkpoint, progress),
         target=observation.positions,
         weights=observation.weights(spec.loss),
         device=str(simulator.vel_mean.device),

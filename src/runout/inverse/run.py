@@ -42,17 +42,19 @@ def invert(
     checkpoint: bool = True,
     plot_iterations: str | None = None,
     log: Log | None = None,
+    progress: bool = False,
 ) -> InversionResult:
     """Back-calculate the spec's free parameters; write histories and figures to out_dir.
 
-    A run killed part-way resumes when called again with the same arguments."""
+    A run killed part-way resumes when called again with the same arguments. `log` receives
+    one line per evaluation; `progress` shows a bar over each forward run."""
     if engine not in ENGINES:
         raise InputError(f"--engine {engine!r} must be one of {', '.join(ENGINES)}.")
     if starts < 1:
         raise InputError(f"--starts {starts} must be at least 1.")
     spec = load_inverse_spec(spec_path)
     observation = load_observation(spec)
-    evaluate, model_name = _evaluator(spec, observation, engine, model, device, fd_step, checkpoint)
+    evaluate, model_name = _evaluator(spec, observation, engine, model, device, fd_step, checkpoint, progress)
     info = RunInfo(digest=spec.digest, engine=engine, model=model_name, start=[])
     results = run_starts(
         evaluate, spec.free, starts, Path(out_dir), info, spec.optimiser,
@@ -66,15 +68,15 @@ def invert(
     return inversion
 
 
-def _evaluator(spec, observation, engine, model, device, fd_step, checkpoint):
+def _evaluator(spec, observation, engine, model, device, fd_step, checkpoint, progress):
     if engine == "mpm-fd":
         from runout.inverse.mpm_fd import MpmFiniteDifference
 
-        return MpmFiniteDifference(spec, observation, fd_step, device), ""
+        return MpmFiniteDifference(spec, observation, fd_step, device, progress), ""
     from runout.inverse.forward import inverse_problem, load_model
 
     simulator = load_model(None if model is None else Path(model), device)
-    return inverse_problem(spec, observation, simulator, checkpoint).evaluate, str(Path(model).resolve())
+    return inverse_problem(spec, observation, simulator, checkpoint, progress).evaluate, str(Path(model).resolve())
 
 
 def _draw(result: StartResult, observation: Observation, plot_iterations: str | None) -> None:
