@@ -43,12 +43,13 @@ def invoke(args):
 
 @pytest.fixture(scope="module")
 def studies(tmp_path_factory):
-    """A tiny model, and the columns, slope and diagnostics studies run on it (coarse)."""
+    """A tiny model, and the columns, slope, diagnostics and inverse studies run on it (coarse)."""
     root = tmp_path_factory.mktemp("evaluate")
     model = tiny_model(root / "model.pt")
     common = ["--model", model, "--out", root / "out", "--cache", root / "cache", *COARSE]
     for args in (["columns", *COLUMN_GRID], ["slope", "--scale", "0.2"],
-                 ["diagnostics", "--aspect", "1", "--phi", "22.5", "--c", "25", "--scale", "0.2"]):
+                 ["diagnostics", "--aspect", "1", "--phi", "22.5", "--c", "25", "--scale", "0.2"],
+                 ["inverse", "--scale", "0.4", "--max-iterations", "1"]):
         result = invoke(["evaluate", *args, *common])
         assert result.exit_code == 0, result.output
     return root
@@ -113,10 +114,11 @@ def test_a_second_columns_run_reads_the_mpm_from_the_cache(studies, tmp_path, mo
         raise AssertionError("the MPM ran although every scene is cached")
 
     monkeypatch.setattr(mpm_cache, "simulate", no_mpm)
-    args = ["evaluate", "columns", *COLUMN_GRID, *COARSE, "--model", studies / "model.pt", "--out", tmp_path, "--cache", studies / "cache"]
-    result = invoke(args)
+    one_case = ["--aspects", "2", "--phis", "22.5", "--cohesions", "25", "--scale", "0.2"]
+    result = invoke(["evaluate", "columns", *one_case, *COARSE, "--model", studies / "model.pt", "--out", tmp_path,
+                     "--cache", studies / "cache"])
     assert result.exit_code == 0, result.output
-    assert (tmp_path / "columns" / "cases.csv").read_text() .count("\n") == 3
+    assert (tmp_path / "columns" / "cases.csv").read_text().count("\n") == 2
 
 
 # ----------------------------------------------------------------------------- studies
@@ -156,6 +158,16 @@ def test_diagnostics_use_the_models_training_velocities(studies):
     assert (studies / "out" / "diagnostics" / "velocity_diagnostics.png").is_file()
 
 
+def test_inverse_recovers_nothing_it_cannot_but_records_truth_history_and_figures(studies):
+    folder = studies / "out" / "inverse"
+    s = json.loads((folder / "summary.json").read_text())
+    assert [(p["true"], p["lower"], p["upper"]) for p in s["parameters"]] == [(40.0, 10.0, 100.0), (100.0, 99.0, 101.0), (41.0, 5.0, 50.0)]
+    assert all(p["lower"] <= p["inferred"] <= p["upper"] for p in s["parameters"])
+    assert s["history"][0]["model_loss"] == pytest.approx(np.mean([(80 - 40) ** 2 / 90**2, 0.0, (30 - 41) ** 2 / 45**2]))
+    for name in ("target.png", "run/loss.png", "run/parameters.png", "run/deposit.png"):
+        assert (folder / name).is_file()
+
+
 def test_inverse_spec_keeps_the_papers_bounds_and_points_at_the_mpm_target(tmp_path):
     import tomllib
 
@@ -189,7 +201,7 @@ def test_report_names_the_model_and_links_existing_figures(studies, tmp_path):
     assert result.exit_code == 0, result.output
     text = doc.read_text()
     assert "untrained (saved without a training run)" in text and "shrunk: not the paper's geometry" in text
-    assert "| aspect a | cases | mean error (%) | CV | R² |" in text and "Not run (`runout evaluate inverse`)." in text
+    assert "| aspect a | cases | mean error (%) | CV | R² |" in text and "Not run (`runout evaluate sensitivity`)." in text
     links = [part.split(")")[0] for part in text.split("](")[1:]]
     assert links and all((doc.parent / link).is_file() for link in links)
 

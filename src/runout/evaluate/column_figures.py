@@ -27,7 +27,7 @@ def draw_runout_comparison(rows, stats: list[dict], path: Path) -> None:
     aspects, labels = _aspects(rows), _material_labels(rows)
     colours = [_colour(k, len(labels)) for k in range(len(labels))]
     r2 = {s["aspect"]: s["r2"] for s in stats}
-    fig = Figure(figsize=(4.2 * len(aspects) + 2.2, 4.2))
+    fig = Figure(figsize=(4.2 * len(aspects) + 2.2, 4.2), layout="constrained")
     axes = fig.subplots(1, len(aspects), squeeze=False)[0]
     for ax, aspect in zip(axes, aspects):
         group = [r for r in rows if r.aspect == aspect]
@@ -40,8 +40,7 @@ def draw_runout_comparison(rows, stats: list[dict], path: Path) -> None:
         ax.set(xlabel="$L^n$ MPM", ylabel="$L^n$ GNS", title=f"a = {aspect:g}, $R^2$ = {r2[aspect]:.3f}", aspect="equal")
     handles = [axes[0].scatter([], [], color=colours[k], s=28, edgecolors="k", linewidths=0.4,
                                label=f"{k}: φ={p:g}°, c={c:g} kPa") for k, (p, c) in enumerate(labels)]
-    fig.legend(handles=handles, loc="center right", fontsize=6, title="material", title_fontsize=7)
-    fig.subplots_adjust(right=1 - 2.0 / fig.get_size_inches()[0], wspace=0.35)
+    fig.legend(handles=handles, loc="outside right center", fontsize=6, title="material", title_fontsize=7)
     _save(fig, path)
 
 
@@ -52,7 +51,7 @@ def draw_error_heatmaps(rows, stats: list[dict], path: Path) -> None:
     cohesions = sorted({r.cohesion_kpa for r in rows})
     by_aspect = {s["aspect"]: s for s in stats}
     top = max([r.ape_percent for r in rows if np.isfinite(r.ape_percent)] + [1e-6])
-    fig = Figure(figsize=(4.2 * len(aspects) + 1.0, 3.8))
+    fig = Figure(figsize=(4.2 * len(aspects) + 1.0, 3.8), layout="constrained")
     axes = fig.subplots(1, len(aspects), squeeze=False)[0]
     image = None
     for ax, aspect in zip(axes, aspects):
@@ -78,12 +77,13 @@ def draw_evolution(truth: Trajectory, predicted: Trajectory, row, percentile: in
     x_hi = max(row.Lf_mpm_m, row.Lf_gns_m, row.L0_m) * 1.1
     y_hi = float(truth.positions[0, truth.soil, 1].max()) * 1.1
     fig = Figure(figsize=(3.6 * len(frames), 2 * max(2.0, 3.6 * y_hi / x_hi) + 0.8), layout="constrained")
-    axes = fig.subplots(2, len(frames), squeeze=False)
+    axes = fig.subplots(2, len(frames), squeeze=False, sharex=True, sharey=True)
     for col, frame in enumerate(frames):
         for ax, traj, engine in ((axes[0, col], truth, "MPM"), (axes[1, col], predicted, "GNS")):
             draw_materials(ax, traj, frame, f"{engine}, t = {frame * traj.frame_dt:.2f} s (frame {frame})", legend=False)
             ax.set_xlim(0, x_hi)
             ax.set_ylim(0, y_hi)
+            ax.label_outer()
     fig.suptitle(f"{percentile}th error percentile: a = {row.aspect:g}, φ = {row.phi_deg:g}°, c = {row.cohesion_kpa:g} kPa; "
                  f"$L^n$ GNS {row.runout_norm_gns:.3f} vs MPM {row.runout_norm_mpm:.3f} ({row.ape_percent:.2f} %)", fontsize=10)
     _save(fig, path)
@@ -97,4 +97,4 @@ def _colour(k: int, n: int):
 
 def _save(fig: Figure, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120, bbox_inches="tight")
+    fig.savefig(path, dpi=120)

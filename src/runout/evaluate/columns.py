@@ -16,6 +16,7 @@ from __future__ import annotations
 import csv
 import itertools
 import json
+import shutil
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -157,7 +158,12 @@ def draw_outputs(rows: list[CaseResult], folder: Path, cache: MpmCache, scenes) 
     draw_runout_comparison(rows, stats, folder / "runout_1to1.png")
     draw_error_heatmaps(rows, stats, folder / "error_heatmaps.png")
     by_name = {s.name: s for s in scenes}
+    drawn: dict[str, Path] = {}  # a case at two percentiles (few cases) is drawn once
     for q, row in percentile_cases(rows).items():
+        path = folder / f"evolution_p{q}.png"
+        if row.case in drawn:
+            shutil.copyfile(drawn[row.case], path)
+            continue
         truth = cache.load(by_name[row.case], progress=False)
-        predicted = load_trajectory(folder / "gns" / row.case)
-        draw_evolution(truth, predicted, row, q, folder / f"evolution_p{q}.png")
+        draw_evolution(truth, load_trajectory(folder / "gns" / row.case), row, q, path)
+        drawn[row.case] = path
