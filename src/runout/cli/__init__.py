@@ -12,6 +12,7 @@ from runout.cli import mpm_commands  # noqa: F401  (registers mpm, show, demo)
 from runout.cli import gns_commands  # noqa: F401
 from runout.cli import inverse_commands  # noqa: F401
 from runout.cli import data_commands  # noqa: F401
+from runout.cli import demo_commands  # noqa: F401
 from runout.cli import evaluate_commands  # noqa: F401
 from runout.errors import InputError
 

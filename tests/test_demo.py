@@ -1,0 +1,140 @@
+"""`runout demo` wiring (reduced by --quick) and the GPU session driver (scripts/gpu_session.py),
+both on CPU with tiny models."""
+
+import importlib.util
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+from typer.testing import CliRunner
+
+from runout.cli import app
+from runout.errors import InputError
+from runout.gns import NetworkConfig
+from runout.gns.checkpoint import read_checkpoint
+from runout.train import TrainConfig, train
+from test_gns_synthetic import write_dataset
+
+torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
+
+REPO = Path(__file__).resolve().parents[1]
+TINY = ["--latent", "16", "--message-passing", "2", "--device", "cpu"]
+
+
+def load_session_module():
+    spec = importlib.util.spec_from_file_location("gpu_session", REPO / "scripts" / "gpu_session.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up there
+    spec.loader.exec_module(module)
+    return module
+
+
+session = load_session_module()
+
+
+def tiny_model(folder: Path, width: int, radius: float) -> Path:
+    """A checkpoint trained for 2 steps on falling blocks, with the given material width and radius (m)."""
+    data = write_dataset(folder / "data", width=width)
+    meta = json.loads((data / "metadata.json").read_text())
+    meta["default_connectivity_radius"] = radius
+    (data / "metadata.json").write_text(json.dumps(meta))
+    network = NetworkConfig(latent=16, hidden=16, hidden_layers=2, message_passing_steps=2)
+    train(TrainConfig(data=data, out=folder / "run", steps=2, network=network, valid_every=0, log_every=1, checkpoint_layers=False))
+    return folder / "run" / "checkpoint.pt"
+
+
+def session_dataset(folder: Path, stage: str, count: int = 10, seed: int = 0, frames: int = 20, cell: float = 4.0) -> Path:
+    """A finished dataset as `runout generate` leaves it (falling blocks stand in for the MPM)."""
+    width = 1 if stage == "base" else 2
+    data = write_dataset(folder, frames=frames, width=width)
+    shutil.copyfile(data / "valid.npz", data / "test.npz")
+    meta = json.loads((data / "metadata.json").read_text())
+    meta.update(stage=stage, count=count, seed=seed, frames=frames, cell_size=cell,
+                material_features=["tan_phi", "c_over_100kPa"][:width])
+    (data / "metadata.json").write_text(json.dumps(meta))
+    return data
+
+
+def session_args(tmp_path: Path, stage: str, data: Path, minutes: str = "0.15", reserve: str = "3") -> list[str]:
+    return ["--stage", stage, "--minutes", minutes, "--reserve", reserve, "--count", "10", "--frames", "20",
+            "--data", str(data), "--run", str(tmp_path / f"run_{stage}"), "--models", str(tmp_path / "models"),
+            "--out", str(tmp_path / f"out_{stage}"), *TINY]
+
+
+# ----------------------------------------------------------------------------- demo
+
+
+def test_quick_demo_writes_the_forward_and_inverse_pictures(tmp_path):
+    model = tiny_model(tmp_path / "model", width=2, radius=11.5)  # 10 m cells: ~1,000 slope points
+    out = tmp_path / "demo"
+    result = CliRunner().invoke(app, ["demo", "--out", str(out), "--model", str(model), "--quick"])
+    assert result.exit_code == 0, result.output
+    for name in ("forward/animation.gif", "forward/final.png", "inverse/result/loss.png",
+                 "inverse/result/parameters.png", "inverse/result/deposit.png", "inverse/result/history.csv"):
+        assert (out / name).stat().st_size > 0, name
+        assert str(out / name) in result.output or name.endswith(".csv")
+    assert "1080 points at 10 m cells" in result.output  # the slope filled at the model's spacing
+    assert len(list((out / "inverse").glob("mpm_*/trajectory.npz"))) == 1
+    again = CliRunner().invoke(app, ["demo", "--out", str(out), "--model", str(model), "--quick"])
+    assert again.exit_code == 0 and "cached" in again.output  # the MPM target is reused
+
+
+def test_demo_refuses_a_model_without_cohesion_input(tmp_path):
+    model = tiny_model(tmp_path / "model", width=1, radius=11.5)
+    result = CliRunner().invoke(app, ["demo", "--out", str(tmp_path / "demo"), "--model", str(model), "--quick"])
+    assert isinstance(result.exception, InputError)
+    assert "cohesion input" in str(result.exception)
+
+
+# ----------------------------------------------------------------------------- GPU session driver
+
+
+def test_a_base_session_then_a_finetune_session_continue_each_other(tmp_path):
+    base_data = session_dataset(tmp_path / "base_data", "base")
+    assert session.main(session_args(tmp_path, "base", base_data)) == 0
+    out = tmp_path / "out_base"
+    assert sorted(p.name for p in out.iterdir()) == ["base.pt", "eval.png", "log.jsonl", "session.json"]
+    summary = json.loads((out / "session.json").read_text())
+    assert summary["init"] is None and summary["training"]["steps"] >= session.MEASURE_STEPS
+    assert summary["training"]["first_steps_per_s"] > 0 and "position_mse_mean_m2" in summary["evaluation"]
+    base = read_checkpoint(out / "base.pt")
+    assert "optimizer" not in base and base["step"] == summary["training"]["steps"]
+
+    (tmp_path / "models").mkdir()
+    shutil.copyfile(out / "base.pt", tmp_path / "models" / "base.pt")
+    ft_data = session_dataset(tmp_path / "ft_data", "finetune")
+    assert session.main(session_args(tmp_path, "finetune", ft_data)) == 0
+    tuned = read_checkpoint(tmp_path / "out_finetune" / "slope.pt")
+    ft_summary = json.loads((tmp_path / "out_finetune" / "session.json").read_text())
+    assert ft_summary["init"] == str(tmp_path / "models" / "base.pt")
+    assert tuned["schema"]["material_features"] == ["tan_phi", "c_over_100kPa"]  # widened
+    assert tuned["step"] == base["step"] + ft_summary["training"]["steps"]  # cumulative: the lr schedule continues
+    assert [s["stage"] for s in tuned["sessions"]] == ["base", "finetune"]
+
+
+def test_a_committed_model_of_another_radius_is_passed_over(tmp_path):
+    models = tmp_path / "models"
+    models.mkdir()
+    shutil.copyfile(tiny_model(tmp_path / "smoke", width=2, radius=11.5), models / "slope.pt")
+    shutil.copyfile(tiny_model(tmp_path / "base", width=1, radius=4.6), models / "base.pt")
+    args = session.parse_args(["--stage", "finetune", "--out", str(tmp_path / "out"), "--models", str(models)])
+    meta = {"default_connectivity_radius": 4.6, "material_features": ["tan_phi", "c_over_100kPa"]}
+    start, skipped = session.starting_checkpoint(args, meta)
+    assert start == models / "base.pt"
+    assert len(skipped) == 1 and "connectivity radius 11.5 m" in skipped[0]
+
+
+def test_a_session_whose_deadline_passes_during_generation_says_so(tmp_path):
+    args = session_args(tmp_path, "finetune", tmp_path / "new_data", minutes="0.01", reserve="0.599")
+    assert session.main(args) == 0
+    summary = json.loads((tmp_path / "out_finetune" / "session.json").read_text())
+    assert "not complete" in summary["stopped"]
+    assert not (tmp_path / "out_finetune" / "slope.pt").exists()
+
+
+def test_a_reserve_longer_than_the_budget_is_refused(tmp_path, capsys):
+    assert session.main(["--stage", "base", "--out", str(tmp_path), "--minutes", "0.5", "--reserve", "30"]) == 2
+    assert "--reserve 30 s must lie in [0, 30) s" in capsys.readouterr().err
