@@ -158,7 +158,7 @@ def test_diagnostics_use_the_models_training_velocities(studies):
     assert (studies / "out" / "diagnostics" / "velocity_diagnostics.png").is_file()
 
 
-def test_inverse_recovers_nothing_it_cannot_but_records_truth_history_and_figures(studies):
+def test_inverse_records_truth_bounds_model_loss_and_figures(studies):
     folder = studies / "out" / "inverse"
     s = json.loads((folder / "summary.json").read_text())
     assert [(p["true"], p["lower"], p["upper"]) for p in s["parameters"]] == [(40.0, 10.0, 100.0), (100.0, 99.0, 101.0), (41.0, 5.0, 50.0)]
