@@ -106,8 +106,9 @@ def _inverse(simulator, model: Path, scene_path: Path, out: Path, quick: bool) -
     result_dir = out / "result"
     shutil.rmtree(result_dir, ignore_errors=True)  # a demo starts afresh (the model may have changed)
     t0 = time.perf_counter()
-    result = invert(spec, result_dir, model=model, log=None)
-    typer.echo(f"inverse: {result.best.evaluations} GNS rollouts with gradients in {time.perf_counter() - t0:.0f} s")
+    typer.echo(f"inverse: L-BFGS-B on c of {FREE_MATERIAL}, one line per GNS rollout with its gradient")
+    result = invert(spec, result_dir, model=model, log=lambda line: typer.echo(f"  {line}"))
+    typer.echo(f"inverse: {result.best.evaluations} evaluations in {time.perf_counter() - t0:.0f} s")
     for line in summary_lines(result):
         typer.echo(f"  {line}")
     typer.echo(f"  true value: c = {scene.materials[FREE_MATERIAL].cohesion:g} kPa (the MPM target's)")
