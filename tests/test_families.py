@@ -7,13 +7,12 @@ import pytest
 from typer.testing import CliRunner
 
 from runout.cli.app import app
-from runout.errors import InputError
 from runout.families import (
     BLOCK_COUNT, BLOCK_SIDE, BLOCK_SPEED, DOMAIN_HEIGHT, GROUND_TOP, STAGES, family_sequence, sample,
     sample_for_index, vertex_ranges,
 )
 from runout.scene import (
-    PARTICLE_TYPE_KINEMATIC, _segments_cross, fill_points, points_in_polygon, polygon_area,
+    PARTICLE_TYPE_KINEMATIC, edges_cross, fill_points, points_in_polygon, polygon_area,
     polygon_self_intersects, polygons_overlap, validate_scene,
 )
 
@@ -36,11 +35,7 @@ def _assert_disjoint(polys, width):
     lattice lies inside two of them."""
     for a in range(len(polys)):
         for b in range(a + 1, len(polys)):
-            p, q = polys[a], polys[b]
-            for i in range(len(p)):
-                for j in range(len(q)):
-                    crossed = _segments_cross(p[i], p[(i + 1) % len(p)], q[j], q[(j + 1) % len(q)], 1e-6)
-                    assert not crossed, f"regions {a} and {b} cross"
+            assert not edges_cross(polys[a], polys[b], 1e-6), f"regions {a} and {b} cross"
     gx, gy = np.meshgrid(np.arange(0.31, width, 2.1), np.arange(0.17, DOMAIN_HEIGHT, 2.1))
     lattice = np.column_stack([gx.ravel(), gy.ravel()])
     cover = sum(points_in_polygon(lattice, p).astype(int) for p in polys)
@@ -128,23 +123,10 @@ def test_columns_stand_against_the_left_wall_on_the_base():
         _assert_in(np.ptp(p[:, 1]), (50, 100), "column height")
 
 
-def _vertex_mean_probe_bug() -> bool:
-    """scene.polygons_overlap probes each polygon's vertex mean, which lies outside a
-    non-convex polygon: an L-shaped layer wrapped round a block then 'overlaps' the block."""
-    ell = np.array([[0, 0], [10, 0], [10, 1], [1, 1], [1, 10], [0, 10]], dtype=float)
-    block = np.array([[1, 1], [10, 1], [10, 10], [1, 10]], dtype=float)
-    return polygons_overlap(ell, block)
-
-
 @pytest.mark.parametrize("stage,family", CASES)
 def test_samples_pass_validate_scene(stage, family):
     for s in _samples(stage, family, n=3, seed=3):
-        try:
-            validate_scene(s.scene, f"{stage}/{family}")
-        except InputError as exc:
-            if "overlap" in str(exc) and _vertex_mean_probe_bug():
-                pytest.xfail("scene.polygons_overlap flags touching non-convex layers (vertex-mean probe)")
-            raise
+        validate_scene(s.scene, f"{stage}/{family}")
 
 
 def test_family_mix_follows_the_paper_in_every_prefix():

@@ -389,31 +389,37 @@ def polygon_area(p: np.ndarray) -> float:
     return 0.5 * float(np.sum(x * np.roll(y, -1) - np.roll(x, -1) * y))
 
 
-def _orient(a, b, c) -> float:
-    return (b[0] - a[0]) * (c[1] - a[1]) - (b[1] - a[1]) * (c[0] - a[0])
+def _edges(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    return p, np.roll(p, -1, axis=0)
 
 
-def _segments_cross(a, b, c, d, tol: float) -> bool:
-    """True when segments ab and cd cross at a point interior to both (touching is not crossing)."""
-    o1, o2 = _orient(a, b, c), _orient(a, b, d)
-    o3, o4 = _orient(c, d, a), _orient(c, d, b)
-    return (o1 > tol and o2 < -tol or o1 < -tol and o2 > tol) and (
-        o3 > tol and o4 < -tol or o3 < -tol and o4 > tol
+def _cross_pairs(p: np.ndarray, q: np.ndarray, tol: float) -> np.ndarray:
+    """[Ep, Eq] bool: edge i of p and edge j of q cross at a point interior to both
+    (touching, sharing a vertex or running collinear is not crossing)."""
+    a, b = (e[:, None, :] for e in _edges(p))
+    c, d = (e[None, :, :] for e in _edges(q))
+
+    def orient(u, v, w):
+        return (v[..., 0] - u[..., 0]) * (w[..., 1] - u[..., 1]) - (v[..., 1] - u[..., 1]) * (w[..., 0] - u[..., 0])
+
+    o1, o2, o3, o4 = orient(a, b, c), orient(a, b, d), orient(c, d, a), orient(c, d, b)
+    return (((o1 > tol) & (o2 < -tol)) | ((o1 < -tol) & (o2 > tol))) & (
+        ((o3 > tol) & (o4 < -tol)) | ((o3 < -tol) & (o4 > tol))
     )
+
+
+def edges_cross(p: np.ndarray, q: np.ndarray, tol: float) -> bool:
+    """True when an edge of polygon p properly crosses an edge of polygon q."""
+    return bool(_cross_pairs(p, q, tol).any())
 
 
 def polygon_self_intersects(p: np.ndarray) -> bool:
     n = len(p)
     scale = max(1.0, float(np.abs(p).max()))
-    tol = 1e-9 * scale * scale
-    for i in range(n):
-        a, b = p[i], p[(i + 1) % n]
-        for j in range(i + 2, n):
-            if i == 0 and j == n - 1:
-                continue  # adjacent through the closing edge
-            if _segments_cross(a, b, p[j], p[(j + 1) % n], tol):
-                return True
-    return False
+    cross = _cross_pairs(p, p, 1e-9 * scale * scale)
+    i, j = np.triu_indices(n, k=2)
+    keep = ~((i == 0) & (j == n - 1))  # the closing edge is adjacent to the first
+    return bool(cross[i[keep], j[keep]].any())
 
 
 def points_in_polygon(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
@@ -429,42 +435,35 @@ def points_in_polygon(points: np.ndarray, poly: np.ndarray) -> np.ndarray:
     return (crossings.sum(axis=1) % 2) == 1
 
 
-def _strictly_inside(pt: np.ndarray, poly: np.ndarray, tol: float) -> bool:
-    if not points_in_polygon(pt[None, :], poly)[0]:
-        return False
-    a = poly
-    b = np.roll(poly, -1, axis=0)
+def _strictly_inside(points: np.ndarray, poly: np.ndarray, tol: float) -> np.ndarray:
+    """[N] bool: inside the polygon and farther than tol from its boundary."""
+    a, b = _edges(poly)
     ab = b - a
-    t = np.clip(np.einsum("ij,ij->i", pt - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-30), 0, 1)
-    dist = np.linalg.norm(a + t[:, None] * ab - pt, axis=1).min()
-    return dist > tol
+    rel = points[:, None, :] - a[None]
+    t = np.clip((rel * ab[None]).sum(-1) / np.maximum((ab**2).sum(-1), 1e-30)[None], 0, 1)
+    dist = np.linalg.norm(rel - t[..., None] * ab[None], axis=-1).min(axis=1)
+    return points_in_polygon(points, poly) & (dist > tol)
+
+
+def _probes(p: np.ndarray, n: int = 16) -> np.ndarray:
+    """Vertices, edge midpoints and a grid of interior points of polygon p."""
+    lo, hi = p.min(axis=0), p.max(axis=0)
+    gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], n + 2)[1:-1], np.linspace(lo[1], hi[1], n + 2)[1:-1])
+    grid = np.column_stack([gx.ravel(), gy.ravel()])
+    a, b = _edges(p)
+    return np.vstack([p, 0.5 * (a + b), grid[points_in_polygon(grid, p)]])
 
 
 def polygons_overlap(p: np.ndarray, q: np.ndarray) -> bool:
-    """True when the interiors of two simple polygons intersect; shared edges are allowed."""
+    """True when the interiors of two simple polygons intersect; shared edges are allowed.
+
+    Either an edge of one properly crosses an edge of the other, or a vertex, edge midpoint
+    or interior sample of one lies strictly inside the other."""
     scale = max(1.0, float(np.abs(p).max()), float(np.abs(q).max()))
     tol = 1e-7 * scale
-    for i in range(len(p)):
-        for j in range(len(q)):
-            if _segments_cross(p[i], p[(i + 1) % len(p)], q[j], q[(j + 1) % len(q)], tol * scale):
-                return True
-    probes_p = np.vstack([p, 0.5 * (p + np.roll(p, -1, axis=0)), p.mean(axis=0, keepdims=True)])
-    probes_q = np.vstack([q, 0.5 * (q + np.roll(q, -1, axis=0)), q.mean(axis=0, keepdims=True)])
-    if any(_strictly_inside(v, q, tol) for v in probes_p):
+    if _cross_pairs(p, q, tol * scale).any():
         return True
-    if any(_strictly_inside(v, p, tol) for v in probes_q):
-        return True
-    # identical or edge-sharing polygons: probe a point just inside p
-    return _interior_sample_inside(p, q, tol) or _interior_sample_inside(q, p, tol)
-
-
-def _interior_sample_inside(p: np.ndarray, q: np.ndarray, tol: float) -> bool:
-    lo, hi = p.min(axis=0), p.max(axis=0)
-    n = 24
-    gx, gy = np.meshgrid(np.linspace(lo[0], hi[0], n + 2)[1:-1], np.linspace(lo[1], hi[1], n + 2)[1:-1])
-    pts = np.column_stack([gx.ravel(), gy.ravel()])
-    pts = pts[points_in_polygon(pts, p)]
-    return any(_strictly_inside(v, q, tol) and _strictly_inside(v, p, tol) for v in pts)
+    return bool(_strictly_inside(_probes(p), q, tol).any() or _strictly_inside(_probes(q), p, tol).any())
 
 
 # ----------------------------------------------------------------------------- points

@@ -8,7 +8,7 @@ import sys
 import typer
 
 from runout.cli.app import app
-from runout.cli import mpm_commands  # noqa: F401  (registers mpm, show, demo)
+from runout.cli import mpm_commands  # noqa: F401  (registers mpm, show)
 from runout.cli import gns_commands  # noqa: F401
 from runout.cli import inverse_commands  # noqa: F401
 from runout.cli import data_commands  # noqa: F401

@@ -16,6 +16,7 @@ def mpm(
     device: str = typer.Option("cpu", help="cpu or cuda."),
     frames: int = typer.Option(None, help="Output frames including frame 0 (default: the scene's [time] frames)."),
     animate: bool = typer.Option(True, help="Write animation.gif."),
+    compile: bool = typer.Option(False, help="torch.compile the substep: faster on long runs, slow to start."),
 ) -> None:
     """Run the MPM on a scene: writes trajectory.npz + metadata.json (GNS layout, material
     features [tan phi, c/100 kPa]), initial.png, final.png and animation.gif."""
@@ -27,7 +28,7 @@ def mpm(
     sc = load_scene(scene)
     if frames is not None:
         sc = sc.with_frames(frames)
-    traj = simulate([sc], device=device)[0]
+    traj = simulate([sc], device=device, compile=compile)[0]
     out.mkdir(parents=True, exist_ok=True)
     save_trajectory(traj, out)
     save_frame(traj, 0, out / "initial.png")

@@ -28,8 +28,11 @@ def simulate(
     progress: bool = True,
     frames: int | None = None,
     dtype: torch.dtype = torch.float64,
+    compile: bool = False,
 ) -> list[Trajectory]:
-    """Run every scene through the MPM; returns one Trajectory per scene, in order."""
+    """Run every scene through the MPM; returns one Trajectory per scene, in order.
+
+    dtype float64 (default) or float32; compile=True uses torch.compile for long runs."""
     device = torch.device(device)
     if device.type == "cuda" and not torch.cuda.is_available():
         raise InputError("--device cuda was asked for but no CUDA GPU is available; use --device cpu.")
@@ -41,6 +44,6 @@ def simulate(
     out: list[Trajectory | None] = [None] * len(scenes)
     for (*_, n, _), members in groups.items():
         batch = build_batch([scenes[k] for k in members], device, dtype)
-        for k, traj in zip(members, run_batch(batch, n, progress)):
+        for k, traj in zip(members, run_batch(batch, n, progress, compile)):
             out[k] = traj
     return out

@@ -20,6 +20,7 @@ from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
 
 GRAVITY = 9.81
+RELAX_PERIODS = 1.5  # length of the geostatic relaxation in periods of the slowest mode
 
 
 def substeps_per_frame(scene: Scene) -> int:
@@ -178,8 +179,9 @@ def relax_geostatic(batch: Batch) -> int:
     Damped elastic dynamics with the points held in place: stresses absorb the strain the
     grid would impose until grid forces balance gravity, then the velocities are reset and
     the Mohr-Coulomb surface is applied once. Per scene, the viscous damping critically
-    damps the slowest vertical mode, 4 H / c_p in period for its tallest body H, and three
-    such periods are run; a scene that has finished holds its stresses while others go on,
+    damps the slowest vertical mode, 4 H / c_p in period for its tallest body H, and
+    RELAX_PERIODS such periods are run; a scene that has finished holds its stresses while
+    others go on,
     so a batch relaxes each scene exactly as it would alone. Returns the substeps run."""
     pts, grid = batch.pts, batch.grid
     if len(pts.x) == 0:
@@ -191,7 +193,7 @@ def relax_geostatic(batch: Batch) -> int:
     c_p.scatter_reduce_(0, pts.scene, torch.sqrt((pts.mat.lam + 2 * pts.mat.shear) * pts.volume / pts.mass),
                         reduce="amax")
     period = 4 * height / c_p  # s, per scene
-    steps = torch.ceil(3 * period / batch.dt).long()  # per scene
+    steps = torch.ceil(RELAX_PERIODS * period / batch.dt).long()  # per scene
     damping = torch.clamp(4 * math.pi * batch.dt / period, max=0.5)[pts.scene][:, None]
     steps_p = steps[pts.scene]
     x0, v0 = pts.x.clone(), pts.v.clone()
@@ -214,10 +216,14 @@ def relax_geostatic(batch: Batch) -> int:
     return total
 
 
-def run_batch(batch: Batch, frames: int, progress: bool = True) -> list[Trajectory]:
-    """Advance every scene of the batch through `frames` output frames (frame 0 = start)."""
+def run_batch(batch: Batch, frames: int, progress: bool = True, compile: bool = False) -> list[Trajectory]:
+    """Advance every scene of the batch through `frames` output frames (frame 0 = start).
+
+    compile=True fuses the substep with torch.compile: about 2.5x faster per substep on CPU
+    but it costs a minute or more of compilation first, so it pays off only on long runs."""
     pts, grid = batch.pts, batch.grid
     n_scenes = len(batch.scenes)
+    step = torch.compile(substep, dynamic=True) if compile else substep
     with torch.no_grad():
         relax_steps = relax_geostatic(batch)
     record = [pts.x.detach().to("cpu", torch.float32)]
@@ -227,7 +233,7 @@ def run_batch(batch: Batch, frames: int, progress: bool = True) -> list[Trajecto
     with torch.no_grad():
         for _ in tqdm(range(frames - 1), desc=f"MPM {n_scenes} scene(s)", unit="frame", disable=not progress):
             for _ in range(batch.n_sub):
-                substep(pts, grid, batch.dt, batch.flip)
+                step(pts, grid, batch.dt, batch.flip)
             record.append(pts.x.to("cpu", torch.float32))
             ke, pe = energies(pts, n_scenes)
             kinetic.append(ke.cpu())

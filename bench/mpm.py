@@ -1,0 +1,84 @@
+"""MPM throughput: particle-substeps per second and seconds per run.
+
+A column collapse of about 6,000 points (150 x 160 m column, 4 m cells, 2 x 2 points per
+cell) run alone and in batches of 8 and 64 scenes (friction angle varied across the batch).
+Frames can be cut for a quick figure: throughput is per substep, and the printed "s per
+500-frame run" extrapolates from it (relaxation substeps included in the count).
+
+    python bench/mpm.py                       # CPU, batches 1, 8, 64, 30 frames
+    python bench/mpm.py --device cuda --frames 500
+    python bench/mpm.py --batches 1 --frames 500 --compile
+
+Reference: the paper's MPM data took ~50 minutes per run on a 56-core node.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import torch
+
+from runout.mpm import simulate
+from runout.scene import scene_from_dict
+
+REFERENCE_S_PER_RUN = 50 * 60  # paper: ~50 min per simulation on 56 cores
+
+
+def column_scene(phi: float, frames: int):
+    return scene_from_dict(
+        {
+            "name": f"column_phi{phi:g}",
+            "domain": {"width": 600.0, "height": 200.0},
+            "time": {"frames": frames},
+            "materials": {"soil": {"friction_angle": phi, "cohesion": 10.0}},
+            "regions": [{"material": "soil", "polygon": [[0, 0], [150, 0], [150, 160], [0, 160]]}],
+        }
+    )
+
+
+def measure(batch: int, frames: int, device: str, dtype, compile: bool) -> dict:
+    scenes = [column_scene(20.0 + 20.0 * k / max(batch - 1, 1), frames) for k in range(batch)]
+    if device == "cuda":
+        torch.cuda.synchronize()
+    start = time.perf_counter()
+    trajs = simulate(scenes, device=device, progress=False, dtype=dtype, compile=compile)
+    if device == "cuda":
+        torch.cuda.synchronize()
+    wall = time.perf_counter() - start
+    info = trajs[0].info
+    points = sum(t.n_points for t in trajs)
+    substeps = info["relaxation_substeps"] + info["substeps_per_frame"] * (frames - 1)
+    rate = points * substeps / wall
+    full = info["relaxation_substeps"] + info["substeps_per_frame"] * 499
+    return {
+        "batch": batch, "points_per_scene": trajs[0].n_points, "substeps": substeps, "wall_s": wall,
+        "rate": rate, "s_per_500_frame_run": full * trajs[0].n_points / rate,
+    }
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--device", default="cpu")
+    ap.add_argument("--frames", type=int, default=30)
+    ap.add_argument("--batches", default="1,8,64")
+    ap.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
+    ap.add_argument("--float32", action="store_true")
+    ap.add_argument("--compile", action="store_true")
+    args = ap.parse_args()
+    if args.threads:
+        torch.set_num_threads(args.threads)
+    dtype = torch.float32 if args.float32 else torch.float64
+    print(f"# {platform.processor() or platform.machine()}, torch {torch.__version__}, device {args.device}, "
+          f"threads {torch.get_num_threads()}, {dtype}, compile={args.compile}, frames={args.frames}")
+    print("batch  points/scene  substeps  wall s  particle-substeps/s  s per 500-frame run  vs paper (50 min)")
+    for b in (int(x) for x in args.batches.split(",")):
+        r = measure(b, args.frames, args.device, dtype, args.compile)
+        print(f"{r['batch']:5d}  {r['points_per_scene']:12d}  {r['substeps']:8d}  {r['wall_s']:6.1f}  "
+              f"{r['rate']:19.3e}  {r['s_per_500_frame_run']:19.1f}  "
+              f"{REFERENCE_S_PER_RUN / r['s_per_500_frame_run']:8.0f}x", flush=True)
+
+
+if __name__ == "__main__":
+    main()
