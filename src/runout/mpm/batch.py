@@ -13,8 +13,8 @@ from tqdm.auto import tqdm
 from runout.mpm.geostatic import initial_stress, vertical_stress
 from runout.mpm.mohr_coulomb import MaterialArrays, return_map
 from runout.mpm.solver import (
-    PAD, Constraint, Grid, Points, energies, fixed_ground_contact, p_wave_speed, stable_dt, stencil, stencil_offsets,
-    substep,
+    PAD, Constraint, Grid, Points, energies, fixed_ground_contact, node_offsets, p_wave_speed,
+    stable_dt, stencil, stencil_offsets, substep,
 )
 from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
@@ -99,6 +99,7 @@ def build_batch(scenes: list[Scene], device: torch.device, dtype: torch.dtype) -
         size=size, dx=dx, node_offset=t(offsets, torch.long), ny_nodes=t(np.array([b for _, b in shapes]), torch.long),
         constraints=[Constraint(t(i, torch.long), t(n, dtype), t(m, dtype)) for i, n, m in walls],
         stuck=torch.zeros(0, dtype=torch.long, device=device),
+        offsets=node_offsets(dx, torch.zeros(0, dtype=dtype, device=device)),
     )
     fixed_pos = np.concatenate(fx)
     if len(fixed_pos):

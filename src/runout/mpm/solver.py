@@ -40,6 +40,7 @@ class Grid:
     ny_nodes: torch.Tensor  # [S] nodes per grid column of each scene
     constraints: list[Constraint]  # side walls, base and top, fixed-ground contact
     stuck: torch.Tensor  # [K] node ids deep inside fixed ground: velocity zero
+    offsets: torch.Tensor  # [9, 2] stencil node offsets in metres, made once on the device
 
 
 @dataclass
@@ -101,7 +102,7 @@ def p2g(pts: Points, grid: Grid, dt: float):
          -vol[:, None, None] * torch.stack((sxx, sxy, sxy, syy), 1).reshape(-1, 2, 2)), dim=1,
     )  # [P, 2, 2, 2]
     # A (x_i - x_p) for the 9 nodes as one GEMM: A @ offsets^T - A @ (fx dx)
-    offs = node_offsets(grid.dx, pts.x)
+    offs = grid.offsets
     a_off = (affine.reshape(-1, 2) @ offs.T).reshape(-1, 2, 2, 9)  # [P, which, i, node]
     a_fx = torch.einsum("pwij,pj->pwi", affine, fx * grid.dx)
     shift = a_fx.clone()
@@ -153,7 +154,7 @@ def g2p(pts: Points, v_grid, v_before, cache, grid: Grid, dt: float, flip: float
     v_old_grid = (w[..., None] * v_before[ids]).sum(1)
     v_flip = pts.v + v_pic - v_old_grid
     # C = D^-1 sum_k w_k v_k (x_k - x_p)^T, with the stencil sum as one GEMM
-    offs = node_offsets(grid.dx, pts.x)
+    offs = grid.offsets
     wv_off = (wv.transpose(1, 2).reshape(-1, 9) @ offs).reshape(-1, 2, 2)
     pts.C = (4.0 / grid.dx**2) * (wv_off - v_pic[:, :, None] * (fx * grid.dx)[:, None, :])
     pts.v = flip * v_flip + (1.0 - flip) * v_pic
