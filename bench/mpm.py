@@ -40,6 +40,8 @@ def column_scene(phi: float, frames: int):
 
 def measure(batch: int, frames: int, device: str, dtype, compile: bool) -> dict:
     scenes = [column_scene(20.0 + 20.0 * k / max(batch - 1, 1), frames) for k in range(batch)]
+    if compile:  # compile once (dynamic shapes) outside the timed run
+        simulate(scenes[:1], device=device, progress=False, dtype=dtype, compile=True, frames=2)
     if device == "cuda":
         torch.cuda.synchronize()
     start = time.perf_counter()

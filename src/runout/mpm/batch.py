@@ -174,7 +174,7 @@ def _material_rows(mats, material_id: np.ndarray) -> np.ndarray:
     return np.asarray(table, dtype=float)[material_id]
 
 
-def relax_geostatic(batch: Batch) -> int:
+def relax_geostatic(batch: Batch, step=substep) -> int:
     """Bring the K0 stresses into the discrete equilibrium of this grid before release.
 
     Damped elastic dynamics with the points held in place: stresses absorb the strain the
@@ -204,7 +204,7 @@ def relax_geostatic(batch: Batch) -> int:
     total = int(steps.max())
     for k in range(total):
         stress = pts.stress
-        substep(pts, grid, batch.dt)
+        step(pts, grid, batch.dt, 0.0)
         pts.stress = torch.where((k < steps_p)[:, None], pts.stress, stress)
         pts.x = x0
         pts.v = pts.v * (1 - damping)
@@ -226,7 +226,7 @@ def run_batch(batch: Batch, frames: int, progress: bool = True, compile: bool = 
     n_scenes = len(batch.scenes)
     step = torch.compile(substep, dynamic=True) if compile else substep
     with torch.no_grad():
-        relax_steps = relax_geostatic(batch)
+        relax_steps = relax_geostatic(batch, step)
     record = [pts.x.detach().to("cpu", torch.float32)]
     ke0, pe0 = energies(pts, n_scenes)
     kinetic, potential = [ke0.cpu()], [pe0.cpu()]
