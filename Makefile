@@ -24,7 +24,9 @@ test: setup
 	$(BIN)/python -m pytest -q
 
 bench: setup
-	$(BIN)/python bench/mpm.py
+	$(BIN)/python bench/mpm.py --frames 20 --batches 1,8
+	$(BIN)/python bench/mpm.py --frames 20 --batches 1,8 --compile --float32
+	$(BIN)/python bench/gns.py --repeats 2
 
 clean:
 	rm -rf $(VENV) out .pytest_cache
