@@ -102,7 +102,6 @@ def test_shared_edge_points_belong_to_one_region():
         ({"materials__sand__poisson_ratio": 0.5}, "poisson_ratio = 0.5 is outside the allowed range (0, 0.5)"),
         ({"materials__sand__model": "cam-clay"}, "must be 'mohr-coulomb' or 'elastic'"),
         ({"domain__height": -60.0}, "height = -60 is outside"),
-        ({"domain__width": 102.0}, "whole number of cells"),
         ({"time": {"frames": 0}}, "frames = 0 is outside"),
         ({"time": {"frames": 2.5}}, "frames = 2.5 must be a positive whole number"),
         ({"materials__sand__cohesion": "ten"}, "must be a finite number"),

@@ -332,13 +332,6 @@ def validate_scene(scene: Scene, source: str = "<scene>") -> None:
     _in_range(d.height, 0, math.inf, "height", "domain", source, " m", lo_open=True)
     _in_range(d.cell_size, 0, min(d.width, d.height) / 2, "cell_size", "domain", source, " m", lo_open=True)
     _in_range(d.points_per_cell, 1, 6, "points_per_cell", "domain", source)
-    for key, size in (("width", d.width), ("height", d.height)):
-        cells = size / d.cell_size
-        if abs(cells - round(cells)) > 1e-9 * cells:
-            raise InputError(
-                f"{source}: domain.{key} = {size:g} m must be a whole number of cells of "
-                f"cell_size = {d.cell_size:g} m, for example {round(cells) * d.cell_size:g}."
-            )
     _in_range(d.base_friction, 0, 10, "base_friction", "domain", source)
     _in_range(d.wall_friction, 0, 10, "wall_friction", "domain", source)
     t = scene.time

@@ -52,8 +52,10 @@ class Batch:
 
 
 def _scene_grid_shape(scene: Scene) -> tuple[int, int]:
-    nx = int(round(scene.domain.width / scene.domain.cell_size))
-    ny = int(round(scene.domain.height / scene.domain.cell_size))
+    """Nodes per direction including padding; a domain that is not a whole number of cells
+    gets a grid up to the next whole cell, its right and top walls acting there."""
+    nx = math.ceil(scene.domain.width / scene.domain.cell_size - 1e-9)
+    ny = math.ceil(scene.domain.height / scene.domain.cell_size - 1e-9)
     return nx + 1 + 2 * PAD, ny + 1 + 2 * PAD
 
 
