@@ -1,4 +1,4 @@
-"""`runout mpm`, `runout show` and `runout demo`."""
+"""`runout mpm` and `runout show`."""
 
 from __future__ import annotations
 
