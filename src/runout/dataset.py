@@ -9,7 +9,6 @@ a = v_t - v_{t-1} (m per frame, m per frame^2), pooled over every point and fram
 from __future__ import annotations
 
 import json
-import pickle
 import zipfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
@@ -17,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from runout.errors import InputError
+from runout.npz import SafeNpz, numeric
 from runout.scene import PARTICLE_TYPE_KINEMATIC
 from runout.trajectory import RADIUS_PER_SPACING, Trajectory, gns_tuple
 
@@ -26,6 +26,7 @@ REQUIRED_METADATA = (
 )
 
 SPLITS = ("train", "valid", "test")
+MAX_MATERIAL_WIDTH = 2  # [tan phi, c / 100 kPa]
 
 Simulation = tuple[np.ndarray, np.ndarray, np.ndarray | None]
 
@@ -41,24 +42,16 @@ def read_simulations(path: str | Path) -> list[Simulation]:
 
 def iter_simulations(path: str | Path) -> Iterator[Simulation]:
     """Yield the simulations of a split file one at a time (the dict layout is read lazily,
-    so a large file never sits in memory whole), with the checks of read_simulations."""
+    so a large file never sits in memory whole), with the checks of read_simulations.
+    Files are read with runout.npz.SafeNpz: a pickle that asks for more than numpy arrays
+    is refused, never run."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such dataset file.")
-    try:
-        archive = np.load(path, allow_pickle=True)
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, pickle.UnpicklingError) as exc:
-        raise InputError(f"{path}: not a readable npz file ({exc}).") from None
-    if not isinstance(archive, np.lib.npyio.NpzFile):
-        raise InputError(f"{path}: not a readable npz file (it holds a single array, not simulations).")
-    with archive:
-        if "gns_data" in archive.files:
-            items = iter(archive["gns_data"])
-        else:
-            items = (archive[key] for key in sorted(archive.files, key=_simulation_order))
+    with SafeNpz(path) as archive:
         width = None
-        for k, item in enumerate(items):
-            sim = _check_simulation(path, k, tuple(item))
+        for k, item in enumerate(_items(archive)):
+            sim = _check_simulation(path, k, item)
             w = _material_width(sim)
             if width is None:
                 width = w
@@ -67,6 +60,39 @@ def iter_simulations(path: str | Path) -> Iterator[Simulation]:
                     f"{path}: simulation {k} has {w} material features but simulation 0 has {width}."
                 )
             yield sim
+
+
+def _items(archive: SafeNpz) -> Iterator[tuple]:
+    """Each simulation as a tuple (positions, particle_type[, material]) from any layout:
+    the gns_data object array, the dict of object arrays, or named numeric arrays
+    positions_K, particle_type_K[, material_K] (no pickle at all)."""
+    if "gns_data" in archive.files:
+        data = archive["gns_data"]
+        if data.dtype != object or data.ndim != 1:
+            raise InputError(f"{archive.path}: gns_data has dtype {data.dtype} and shape {data.shape}; expected a 1-D object array of simulations.")
+        for k, item in enumerate(data):
+            yield _as_tuple(archive.path, k, item)
+        return
+    named = sorted((f for f in archive.files if f.startswith("positions_")), key=_simulation_order)
+    if named:
+        for key in named:
+            k = key.rsplit("_", 1)[-1]
+            if f"particle_type_{k}" not in archive.files:
+                raise InputError(f"{archive.path}: has {key} but no particle_type_{k}.")
+            material = (archive[f"material_{k}"],) if f"material_{k}" in archive.files else ()
+            yield (archive[key], archive[f"particle_type_{k}"], *material)
+        return
+    for k, key in enumerate(sorted(archive.files, key=_simulation_order)):
+        yield _as_tuple(archive.path, k, archive[key])
+
+
+def _as_tuple(path: Path, k: int, item) -> tuple:
+    if isinstance(item, np.ndarray) and item.dtype == object and item.ndim == 1:
+        return tuple(item)
+    if isinstance(item, tuple):
+        return item
+    kind = f"an array of dtype {item.dtype} and shape {item.shape}" if isinstance(item, np.ndarray) else f"a {type(item).__name__}"
+    raise InputError(f"{path}: simulation {k} is {kind}; expected a tuple (positions, particle_type[, material]).")
 
 
 def _material_width(sim: Simulation) -> int:
@@ -83,7 +109,7 @@ def _check_simulation(path: Path, k: int, item: tuple) -> Simulation:
         raise InputError(
             f"{path}: simulation {k} has {len(item)} entries; expected (positions, particle_type[, material])."
         )
-    positions = np.asarray(item[0])
+    positions = numeric(item[0], f"simulation {k} positions", path)
     if positions.ndim != 3 or positions.shape[2] != 2 or positions.shape[0] < 7:
         raise InputError(
             f"{path}: simulation {k} positions have shape {positions.shape}; expected [T >= 7, N, 2]."
@@ -91,24 +117,32 @@ def _check_simulation(path: Path, k: int, item: tuple) -> Simulation:
     if not np.isfinite(positions).all():
         raise InputError(f"{path}: simulation {k} positions contain NaN or infinite values.")
     n = positions.shape[1]
-    ptype = np.asarray(item[1])
+    ptype = numeric(item[1], f"simulation {k} particle_type", path)
     if ptype.ndim == 0:
         ptype = np.full(n, int(ptype), dtype=np.int64)
     if ptype.shape != (n,):
         raise InputError(f"{path}: simulation {k} particle_type has shape {ptype.shape}; expected ({n},).")
     material = None
     if len(item) == 3 and item[2] is not None:
-        material = np.asarray(item[2], dtype=np.float32)
-        if material.ndim == 0:
-            material = np.full((n, 1), float(material), dtype=np.float32)
-        material = material.reshape(n, -1) if material.size % n == 0 else material
-        if material.shape[0] != n:
-            raise InputError(
-                f"{path}: simulation {k} material has shape {material.shape}; expected ({n}, k)."
-            )
-        if not np.isfinite(material).all():
-            raise InputError(f"{path}: simulation {k} material features contain NaN or infinite values.")
+        material = _material(path, k, numeric(item[2], f"simulation {k} material", path), n)
     return positions.astype(np.float32), ptype.astype(np.int64), material
+
+
+def _material(path: Path, k: int, material: np.ndarray, n: int) -> np.ndarray:
+    """[N, width] float32 from a scalar, (N,) (the public GNS layout of one feature), (N, 1)
+    or (N, 2)."""
+    material = material.astype(np.float32)
+    if material.ndim == 0:
+        material = np.full((n, 1), float(material), dtype=np.float32)
+    elif material.ndim == 1 and material.shape[0] == n:
+        material = material[:, None]
+    if material.ndim != 2 or material.shape[0] != n or not 1 <= material.shape[1] <= MAX_MATERIAL_WIDTH:
+        raise InputError(
+            f"{path}: simulation {k} material has shape {material.shape}; expected a scalar, ({n},), ({n}, 1) or ({n}, 2)."
+        )
+    if not np.isfinite(material).all():
+        raise InputError(f"{path}: simulation {k} material features contain NaN or infinite values.")
+    return material
 
 
 def write_simulations(
@@ -142,8 +176,15 @@ def _object_tuple(sim: Simulation) -> np.ndarray:
     t[0] = np.asarray(positions, dtype=np.float32)
     t[1] = np.asarray(ptype, dtype=np.int64)
     if material is not None:
-        t[2] = np.asarray(material, dtype=np.float32)
+        t[2] = exchange_material(material)
     return t
+
+
+def exchange_material(material: np.ndarray) -> np.ndarray:
+    """Material features as written to files: one feature as (N,), which the public GNS
+    code reads with np.full(n_particles, material); two as (N, 2)."""
+    material = np.asarray(material, dtype=np.float32)
+    return material[:, 0] if material.ndim == 2 and material.shape[1] == 1 else material
 
 
 def _write_array(archive: zipfile.ZipFile, key: str, arr: np.ndarray) -> None:

@@ -93,11 +93,14 @@ def trajectory_from_features(
 
 
 def gns_tuple(traj: Trajectory, feature_width: int = 2) -> np.ndarray:
-    """The (positions, particle_type, material) tuple as the 1-D object array the GNS reads."""
+    """The (positions, particle_type, material) tuple as the 1-D object array the GNS reads;
+    one material feature is stored as (N,), two as (N, 2)."""
+    from runout.dataset import exchange_material  # dataset builds on trajectory, not the reverse
+
     out = np.empty(3, dtype=object)
     out[0] = traj.positions.astype(np.float32)
     out[1] = traj.particle_type.astype(np.int64)
-    out[2] = traj.material_features(feature_width)
+    out[2] = exchange_material(traj.material_features(feature_width))
     return out
 
 

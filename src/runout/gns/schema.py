@@ -14,6 +14,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, fields
 
 MATERIAL_FEATURE_NAMES = ("tan_phi", "c_over_100kPa")  # runout.scene.Material.features() order
+# Allowed [lowest, highest] of the numeric fields a checkpoint stores.
+SCHEMA_LIMITS = {"history": (2, 20), "dim": (2, 2), "wall_clip": (0.0, 100.0), "particle_types": (1, 64), "type_embedding": (1, 256)}
 
 
 @dataclass(frozen=True)
@@ -61,6 +63,22 @@ class FeatureSchema:
         if "material_features" in kwargs:
             kwargs["material_features"] = tuple(kwargs["material_features"])
         return cls(**kwargs)
+
+    @staticmethod
+    def problem(d: dict) -> str | None:
+        """The first stored field outside SCHEMA_LIMITS or naming an unknown material
+        feature, as a phrase, or None."""
+        for key, (lo, hi) in SCHEMA_LIMITS.items():
+            v = d.get(key, getattr(FeatureSchema, key))
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
+                return f"{key} = {v!r} is outside the allowed range [{lo:g}, {hi:g}]"
+        for key in ("history", "dim", "particle_types", "type_embedding"):
+            if not isinstance(d.get(key, 0), int):
+                return f"{key} = {d[key]!r} must be a whole number"
+        names = d.get("material_features", MATERIAL_FEATURE_NAMES)
+        if not isinstance(names, (list, tuple)) or list(names) != list(MATERIAL_FEATURE_NAMES[: len(names)]) or not names:
+            return f"material_features = {names!r} must be [tan_phi] or [tan_phi, c_over_100kPa]"
+        return None
 
     def difference(self, other: "FeatureSchema") -> str | None:
         """The first field in which `other` differs, as a phrase, or None when equal."""

@@ -7,6 +7,7 @@ accelerations a = v_t - v_{t-1} in m per frame^2 (dt = 1 frame). The network
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass
 
 import torch
@@ -40,6 +41,28 @@ class Normalisation:
     def from_dict(cls, d: dict) -> "Normalisation":
         return cls(tuple(d["vel_mean"]), tuple(d["vel_std"]), tuple(d["acc_mean"]), tuple(d["acc_std"]), d["noise_std"])
 
+    @staticmethod
+    def problem(d: dict) -> str | None:
+        """The first malformed statistic of a stored dictionary, as a phrase, or None."""
+        for key in ("vel_mean", "vel_std", "acc_mean", "acc_std"):
+            v = d[key]
+            if not isinstance(v, (list, tuple)) or len(v) != 2 or not all(_finite(x) for x in v):
+                return f"{key} = {v!r} must be a pair of finite numbers (m per frame)"
+            if key.endswith("std") and min(v) < 0:
+                return f"{key} = {list(v)} must not be negative"
+        if not _finite(d["noise_std"]) or not 0 <= d["noise_std"] <= MAX_NOISE_PER_FRAME:
+            return f"noise_std = {d['noise_std']!r} is outside the allowed range [0, {MAX_NOISE_PER_FRAME:g}] m per frame"
+        return None
+
+
+MAX_NOISE_PER_FRAME = 1.0  # m / frame: noise far beyond any per-frame displacement of soil
+# Allowed layer sizes: [lowest, highest] of each NetworkConfig field.
+NETWORK_LIMITS = {"latent": (1, 1024), "hidden": (1, 1024), "hidden_layers": (1, 8), "message_passing_steps": (1, 50)}
+
+
+def _finite(x) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
 
 @dataclass(frozen=True)
 class NetworkConfig:
@@ -47,6 +70,15 @@ class NetworkConfig:
     hidden: int = 128
     hidden_layers: int = 2
     message_passing_steps: int = 10
+
+    @staticmethod
+    def problem(d: dict) -> str | None:
+        """The first layer size outside NETWORK_LIMITS, as a phrase, or None."""
+        for key, (lo, hi) in NETWORK_LIMITS.items():
+            v = d.get(key, getattr(NetworkConfig, key))
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                return f"{key} = {v!r} is outside the allowed range [{lo}, {hi}] (a whole number)"
+        return None
 
 
 class Simulator(nn.Module):
