@@ -20,6 +20,15 @@ from runout.errors import InputError
 PARTICLE_TYPE_KINEMATIC = 3  # stationary points (ground, foundation): positions prescribed
 PARTICLE_TYPE_SOIL = 6
 
+# Physical upper bounds of scene values (beyond them a run is meaningless or cannot finish).
+MAX_DOMAIN = 20_000.0  # m, width and height
+MAX_LATTICE_POINTS = 2_000_000  # candidate points (domain / point spacing, both ways)
+MAX_FRAMES = 1_000_000
+MAX_SPEED = 100.0  # m/s, each component of an initial velocity (fast rock avalanches)
+MAX_YOUNGS_MODULUS = 1e5  # MPa (100 GPa, stiffer than intact granite)
+MAX_STRENGTH = 1e4  # kPa, cohesion and tension cut-off (10 MPa, soft rock)
+MAX_DENSITY = 1e4  # kg/m^3
+
 
 @dataclass(frozen=True)
 class Domain:
@@ -91,8 +100,8 @@ class Scene:
         return list(self.materials)
 
     def with_frames(self, frames: int) -> "Scene":
-        if frames < 1:
-            raise InputError(f"frames = {frames} must be a positive whole number.")
+        if not 1 <= frames <= MAX_FRAMES:
+            raise InputError(f"frames = {frames} is outside the allowed range [1, {MAX_FRAMES}].")
         return replace(self, time=replace(self.time, frames=frames))
 
     def with_materials(self, **changes: dict[str, float]) -> "Scene":
@@ -328,25 +337,32 @@ def save_scene(scene: Scene, path: str | Path) -> None:
 def validate_scene(scene: Scene, source: str = "<scene>") -> None:
     """Check every range and every polygon; raise InputError with one sentence on failure."""
     d = scene.domain
-    _in_range(d.width, 0, math.inf, "width", "domain", source, " m", lo_open=True)
-    _in_range(d.height, 0, math.inf, "height", "domain", source, " m", lo_open=True)
+    _in_range(d.width, 0, MAX_DOMAIN, "width", "domain", source, " m", lo_open=True)
+    _in_range(d.height, 0, MAX_DOMAIN, "height", "domain", source, " m", lo_open=True)
     _in_range(d.cell_size, 0, min(d.width, d.height) / 2, "cell_size", "domain", source, " m", lo_open=True)
     _in_range(d.points_per_cell, 1, 6, "points_per_cell", "domain", source)
+    candidates = round(d.width / d.point_spacing) * round(d.height / d.point_spacing)
+    if candidates > MAX_LATTICE_POINTS:
+        raise InputError(
+            f"{source}: the domain {d.width:g} x {d.height:g} m at {d.point_spacing:g} m point spacing has "
+            f"{candidates:.3g} candidate points, more than the {MAX_LATTICE_POINTS:.3g} allowed; "
+            "use a larger domain.cell_size or a smaller domain."
+        )
     _in_range(d.base_friction, 0, 10, "base_friction", "domain", source)
     _in_range(d.wall_friction, 0, 10, "wall_friction", "domain", source)
     t = scene.time
     _in_range(t.frame_dt, 0, 10, "frame_dt", "time", source, " s", lo_open=True)
-    _in_range(t.frames, 1, 1_000_000, "frames", "time", source)
+    _in_range(t.frames, 1, MAX_FRAMES, "frames", "time", source)
     _in_range(t.cfl, 0, 1, "cfl", "time", source, lo_open=True)
     _in_range(t.flip, 0, 1, "flip", "time", source)
     for name, m in scene.materials.items():
         where = f"materials.{name}"
         _in_range(m.friction_angle, 0, 60, "friction_angle", where, source, " degrees")
-        _in_range(m.cohesion, 0, math.inf, "cohesion", where, source, " kPa")
-        _in_range(m.youngs_modulus, 0, math.inf, "youngs_modulus", where, source, " MPa", lo_open=True)
+        _in_range(m.cohesion, 0, MAX_STRENGTH, "cohesion", where, source, " kPa")
+        _in_range(m.youngs_modulus, 0, MAX_YOUNGS_MODULUS, "youngs_modulus", where, source, " MPa", lo_open=True)
         _in_range(m.poisson_ratio, 0, 0.5, "poisson_ratio", where, source, lo_open=True, hi_open=True)
-        _in_range(m.density, 0, math.inf, "density", where, source, " kg/m3", lo_open=True)
-        _in_range(m.tension_cutoff, 0, math.inf, "tension_cutoff", where, source, " kPa")
+        _in_range(m.density, 0, MAX_DENSITY, "density", where, source, " kg/m3", lo_open=True)
+        _in_range(m.tension_cutoff, 0, MAX_STRENGTH, "tension_cutoff", where, source, " kPa")
         if m.k0 is not None:
             _in_range(m.k0, 0, 5, "k0", where, source, lo_open=True)
     polys = []
@@ -357,6 +373,12 @@ def validate_scene(scene: Scene, source: str = "<scene>") -> None:
                 f"{source}: {where}.material = '{r.material}' is not defined; defined materials are "
                 f"{', '.join(scene.materials)}."
             )
+        for axis, v in zip("xy", r.velocity):
+            if not math.isfinite(v) or abs(v) > MAX_SPEED:
+                raise InputError(
+                    f"{source}: {where}.velocity {axis} = {v:g} is outside the allowed range "
+                    f"[-{MAX_SPEED:g}, {MAX_SPEED:g}] m/s."
+                )
         p = np.asarray(r.polygon, dtype=float)
         for x, y in p:
             if not (0.0 <= x <= d.width and 0.0 <= y <= d.height):
