@@ -13,6 +13,7 @@ import torch
 from torch.utils.checkpoint import checkpoint as recompute_in_backward
 from tqdm.auto import tqdm
 
+from runout.errors import RunFailed
 from runout.gns.simulator import Simulator, movable_mask
 from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
@@ -21,7 +22,7 @@ CHECK_EVERY = 10  # steps between host checks for NaN and for a stopped flow
 MIN_FRAMES_BEFORE_STOP = 40  # frames: a slope at rest needs time to start failing
 
 
-class RolloutDiverged(RuntimeError):
+class RolloutDiverged(RunFailed):
     """The rollout produced non-finite positions."""
 
 
