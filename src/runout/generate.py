@@ -28,13 +28,15 @@ from tqdm.auto import tqdm
 
 import runout
 from runout.dataset import SPLITS, Moments, Simulation, write_metadata, write_simulations
-from runout.errors import InputError
+from runout.errors import InputError, RunFailed
 from runout.families import BLOCK_SIDE, BLOCK_SPEED, DOMAIN_HEIGHT, STAGES, family_sequence, sample_for_index, vertex_ranges
-from runout.scene import Scene, TimeSpec, save_scene
+from runout.scene import MAX_FRAMES, Scene, TimeSpec, save_scene
 from runout.trajectory import RADIUS_PER_SPACING, Trajectory
 
 FEATURE_NAMES = ("tan_phi", "c_over_100kPa")
 MIN_COUNT = 10  # so that the valid and test splits (k mod 10 = 8, 9) are never empty
+MAX_COUNT = 1_000_000
+MAX_BATCH = 1024
 
 Simulate = Callable[..., list[Trajectory]]  # simulate(scenes, device=..., progress=...)
 
@@ -55,10 +57,14 @@ class GenerateConfig:
             raise InputError(f"stage = {self.stage!r} must be one of {', '.join(STAGES)}.")
         if self.count < MIN_COUNT:
             raise InputError(f"count = {self.count} must be at least {MIN_COUNT} so every split gets scenes.")
-        if self.batch < 1:
-            raise InputError(f"batch = {self.batch} must be a positive whole number.")
+        if self.count > MAX_COUNT:
+            raise InputError(f"count = {self.count} is outside the allowed range [{MIN_COUNT}, {MAX_COUNT}].")
+        if not 1 <= self.batch <= MAX_BATCH:
+            raise InputError(f"batch = {self.batch} is outside the allowed range [1, {MAX_BATCH}].")
         if self.frames < 7:
             raise InputError(f"frames = {self.frames} must be at least 7 (the GNS reads 6-frame windows).")
+        if self.frames > MAX_FRAMES:
+            raise InputError(f"frames = {self.frames} is outside the allowed range [7, {MAX_FRAMES}].")
         if not 1.0 <= self.cell_size <= 16.0:
             raise InputError(f"cell_size = {self.cell_size:g} m is outside the allowed range [1, 16] m.")
 
@@ -112,6 +118,8 @@ def generate(
     """Generate this shard's batches into out_dir, skipping parts already written. An
     unsharded run then writes the dataset files; returns True when it did."""
     config.check()
+    from runout.mpm.budget import check_budget
+
     if simulate is None:
         from runout.mpm import simulate
     out = Path(out_dir)
@@ -128,13 +136,25 @@ def generate(
             scenes = [scene_for(config, k, families[k]) for k in indices]
             for k, scene in zip(indices, scenes):
                 save_scene(scene, out / "scenes" / f"{scene.name}.toml")
+            check_budget(scenes, device=device, source=f"batch {j} of {out}")
             trajs = simulate(scenes, device=device, progress=False)
+            _check_finite(out, scenes, trajs)
             _write_part(out, j, indices, trajs, STAGES[config.stage].feature_width, device)
             bar.update(len(indices))
     if shard[1] > 1:
         return False
     write_dataset(config, [out], out)
     return True
+
+
+def _check_finite(out: Path, scenes: list[Scene], trajs: list[Trajectory]) -> None:
+    for scene, traj in zip(scenes, trajs):
+        bad = traj.first_nonfinite_frame()
+        if bad is not None:
+            raise RunFailed(
+                f"the MPM run of {out / 'scenes' / scene.name}.toml diverged (positions are not finite from frame {bad}); "
+                "the batches before it are kept."
+            )
 
 
 def _claim(out: Path, config: GenerateConfig) -> None:

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import json
 import os
+import signal
+import threading
 import time
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field, replace
@@ -25,13 +27,14 @@ from torch.nn.parallel import DistributedDataParallel
 from tqdm.auto import tqdm
 
 from runout.dataset import read_metadata
-from runout.errors import InputError
+from runout.errors import InputError, Interrupted
 from runout.gns.checkpoint import (
     check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint, widen_material_features,
 )
 from runout.gns.evaluation import compare
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations
+from runout.gns.training_range import measure as measure_ranges
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator, corrected_target, movable_mask, random_walk_noise
 from runout.trajectory import trajectory_from_features
 
@@ -113,6 +116,11 @@ def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
     meta = read_metadata(cfg.data)
     data = Simulations(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"))
     simulator, state, cfg = _build(cfg, meta, data)
+    if state is None or simulator.data_ranges is None:  # new data: record what the model learns from
+        simulator.data_ranges = measure_ranges(
+            [m.cpu().numpy() for m in data.material], [t.cpu().numpy() for t in data.particle_type],
+            meta, simulator.radius, f"measured on {data.path}",
+        )
     simulator.to(ctx.device).train()
     simulator.network.checkpoint_steps = cfg.checkpoint_layers
     optimizer = torch.optim.Adam(simulator.parameters(), lr=cfg.lr_init)
@@ -125,22 +133,60 @@ def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
     best = state.get("best_valid", float("inf")) if state else float("inf")
     start = state["step"] if state else 0
     losses: list[torch.Tensor] = []
-    for step in range(start, cfg.steps):
-        lr = learning_rate(step, cfg)
-        for group in optimizer.param_groups:
-            group["lr"] = lr
-        loss = _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx)
-        losses.append(loss.detach())
-        done = step + 1
-        if done % cfg.log_every == 0 or done % cfg.save_every == 0 or done == cfg.steps:
-            log.losses(done, losses, lr, cfg.log_every)
-            losses = []
-        if cfg.valid_every and done % cfg.valid_every == 0 and ctx.writer:
-            best = _validate(simulator, cfg, meta, log, done, best)
-        if (done % cfg.save_every == 0 or done == cfg.steps) and ctx.writer:
-            _save(Path(cfg.out) / CHECKPOINT, simulator, optimizer, done, cfg, best)
+    with StopRequest() as stop:
+        for step in range(start, cfg.steps):
+            lr = learning_rate(step, cfg)
+            for group in optimizer.param_groups:
+                group["lr"] = lr
+            loss = _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx)
+            losses.append(loss.detach())
+            done = step + 1
+            if done % cfg.log_every == 0 or done % cfg.save_every == 0 or done == cfg.steps:
+                log.losses(done, losses, lr, cfg.log_every)
+                losses = []
+            if cfg.valid_every and done % cfg.valid_every == 0 and ctx.writer:
+                best = _validate(simulator, cfg, meta, log, done, best)
+            saved = done % cfg.save_every == 0 or done == cfg.steps
+            if saved and ctx.writer:
+                _save(Path(cfg.out) / CHECKPOINT, simulator, optimizer, done, cfg, best)
+            if stop.agreed(ctx):
+                if not saved and ctx.writer:
+                    _save(Path(cfg.out) / CHECKPOINT, simulator, optimizer, done, cfg, best)
+                log.close()
+                raise Interrupted(
+                    f"training stopped after step {done}, which {Path(cfg.out) / CHECKPOINT} holds, "
+                    "and --resume continues exactly from there."
+                )
     log.close()
     return simulator.eval()
+
+
+class StopRequest:
+    """Ctrl-C (SIGINT) during training asks the loop to stop after the step it is in, so
+    the checkpoint it saves is that of a whole step; a second Ctrl-C stops at once."""
+
+    def __enter__(self) -> "StopRequest":
+        self.requested = False
+        self._previous = None
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._ask)
+        return self
+
+    def _ask(self, signum, frame) -> None:
+        self.requested = True
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    def agreed(self, ctx: Context) -> bool:
+        """Whether to stop now; under torchrun every process stops if any was asked to."""
+        if ctx.world == 1:
+            return self.requested
+        flag = torch.tensor([float(self.requested)], device=ctx.device)
+        dist.all_reduce(flag, op=dist.ReduceOp.MAX)
+        return bool(flag.item())
+
+    def __exit__(self, *exc) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
 
 
 def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> torch.Tensor:

@@ -48,6 +48,11 @@ class Trajectory:
         """Mask of the points that move (not kinematic)."""
         return self.particle_type != PARTICLE_TYPE_KINEMATIC
 
+    def first_nonfinite_frame(self) -> int | None:
+        """The first frame holding a NaN or infinite position (a diverged run), or None."""
+        bad = ~np.isfinite(self.positions).all(axis=(1, 2))
+        return int(np.argmax(bad)) if bad.any() else None
+
     def material_features(self, width: int = 2) -> np.ndarray:
         """[N, width] float32 GNS features: [tan phi] (width 1) or [tan phi, c / 100 kPa]."""
         table = np.array([m.features()[:width] for m in self.materials], dtype=np.float32)

@@ -9,6 +9,9 @@ import typer
 
 from runout.cli.app import app
 
+FORCE = typer.Option(False, "--force", help="Start afresh in --out, removing a previous run or another command's results there.")
+DATASET_FILES = ("generate.json", "scenes", "parts", "train.npz", "valid.npz", "test.npz", "metadata.json")
+
 
 @app.command()
 def families(
@@ -18,12 +21,14 @@ def families(
     stage: str = typer.Option(None, "--stage", help="base or finetune (default: base, or finetune for column)."),
     seed: int = typer.Option(0, "--seed", help="Random seed."),
     scenes: Path = typer.Option(None, "--scenes", help="Also write each scene as TOML into this directory."),
+    force: bool = typer.Option(False, "--force", help="Replace another command's results in --scenes."),
 ) -> None:
     """Draw a grid of random scenes of one family (paper Table A.1), to look at before generating."""
     import numpy as np
 
     from runout.errors import InputError
     from runout.families import FAMILIES, STAGES, draw_grid, sample
+    from runout.outputs import check_folder, check_picture, claim
     from runout.scene import save_scene
 
     if family not in FAMILIES:
@@ -35,11 +40,15 @@ def families(
         raise InputError(f"--family {family} is not part of the {stage} stage (it has {', '.join(STAGES[stage].mix)}).")
     if not 1 <= count <= 200:
         raise InputError(f"--count {count} is outside the allowed range [1, 200].")
+    check_picture(out)
+    names = [f"{family}_{k:03d}" for k in range(count)]
+    folder = check_folder(scenes, "families", [f"{n}.toml" for n in names], force=force, option="--scenes") if scenes else None
     rng = np.random.default_rng([seed, STAGES[stage].stage_id, FAMILIES.index(family)])
-    samples = [sample(STAGES[stage], family, rng, name=f"{family}_{k:03d}") for k in range(count)]
+    samples = [sample(STAGES[stage], family, rng, name=name) for name in names]
+    out.parent.mkdir(parents=True, exist_ok=True)
     draw_grid(samples, out)
-    if scenes is not None:
-        scenes.mkdir(parents=True, exist_ok=True)
+    if folder is not None:
+        claim(folder)
         for s in samples:
             save_scene(s.scene, scenes / f"{s.scene.name}.toml")
     typer.echo(f"wrote {out}" + (f" and {count} scene files in {scenes}" if scenes else ""))
@@ -56,16 +65,27 @@ def generate(
     shard: str = typer.Option(None, "--shard", help="i/n: run only batches j with j mod n = i (default: torchrun's RANK/WORLD_SIZE)."),
     frames: int = typer.Option(480, "--frames", help="Output frames per scene, frame 0 included."),
     cell_size: float = typer.Option(4.0, "--cell-size", hidden=True, help="Background cell size (m); coarse only for tests."),
+    force: bool = FORCE,
 ) -> None:
     """Sample scenes, run them through the batched MPM and write train/valid/test.npz and
     metadata.json (GNS layout). A killed run resumes where it stopped."""
+    from runout.errors import Interrupted
     from runout.generate import GenerateConfig, generate as run, parse_shard, shard_from_env
+    from runout.outputs import check_folder, claim
 
     where = parse_shard(shard) if shard else shard_from_env(os.environ)
     if device == "cuda" and "LOCAL_RANK" in os.environ:
         device = f"cuda:{os.environ['LOCAL_RANK']}"
     config = GenerateConfig(stage, count, seed, batch, frames, cell_size)
-    if run(config, out, shard=where, device=device):
+    config.check()
+    folder = check_folder(out, "generate", DATASET_FILES, mode="resume", force=force)
+    if where[0] == 0:  # one process prepares a folder that several shards share
+        claim(folder)
+    try:
+        finished = run(config, out, shard=where, device=device)
+    except KeyboardInterrupt:
+        raise Interrupted(f"the finished batches are in {out / 'parts'}, and the same command resumes from them.") from None
+    if finished:
         typer.echo(f"wrote {out}/train.npz, valid.npz, test.npz, metadata.json")
     else:
         typer.echo(f"shard {where[0]}/{where[1]} done; join the shards with `runout merge DIR ... --out {out}`")
@@ -75,10 +95,14 @@ def generate(
 def merge(
     dirs: list[Path] = typer.Argument(..., help="Shard directories of one `runout generate` run."),
     out: Path = typer.Option(..., "--out", help="Dataset directory to write (may be one of the shards)."),
+    force: bool = typer.Option(False, "--force", help="Replace another command's results in --out."),
 ) -> None:
     """Join sharded generation runs into one dataset, identical to an unsharded run."""
     from runout.generate import merge as join
+    from runout.outputs import prepare_folder
 
+    shards = {d.resolve() for d in dirs}
+    prepare_folder(out, "generate", DATASET_FILES, mode="resume", force=force and out.resolve() not in shards)
     join(dirs, out)
     typer.echo(f"wrote {out}/train.npz, valid.npz, test.npz, metadata.json")
 

@@ -37,14 +37,17 @@ def demo(
     model: Path = typer.Option(REPO / "models" / "slope.pt", "--model", help="GNS checkpoint with cohesion input."),
     examples: Path = typer.Option(REPO / "examples", "--examples", help=f"Folder holding {SLOPE} and {DAM}."),
     quick: bool = typer.Option(False, "--quick", hidden=True, help="Few frames and iterations: a wiring check for tests."),
+    force: bool = typer.Option(False, "--force", help="Replace another command's results in --out."),
 ) -> None:
     """Forward runout of the four-layer slope and inverse back-calculation of one strength on a
     small dam, with the shipped GNS; prints where the pictures are (a few minutes on a CPU)."""
     from runout.gns import load_simulator
+    from runout.outputs import prepare_folder
 
     for name in (SLOPE, DAM):
         if not (examples / name).is_file():
             raise InputError(f"--examples {examples}: {name} is missing there.")
+    prepare_folder(out, "demo", ("forward", "inverse"), force=force)
     t0 = time.perf_counter()
     simulator = load_simulator(model, "cpu")
     if simulator.schema.material_width < 2:

@@ -28,6 +28,14 @@ CACHE = typer.Option(DEFAULT_CACHE, "--cache", help="Folder of cached MPM runs, 
 EXAMPLE_DIR = typer.Option(EXAMPLES, "--examples", help="Folder holding the example scenes (column_a*.toml, four_layer_slope.toml, dam.toml, dam_inverse.toml).")
 SCALE = typer.Option(1.0, "--scale", help="Shrink domain and geometry by this factor in (0, 1] (cells stay 4 m); 1 = the paper's geometry.")
 PROGRESS = typer.Option(True, "--progress/--no-progress", help="Show progress bars.")
+FORCE = typer.Option(False, "--force", help="Replace another command's results in --out (other studies' results are kept).")
+
+
+def _claim_out(out: Path, study: str, force: bool) -> None:
+    """OUT holds one subfolder per study; a study adds or replaces its own."""
+    from runout.outputs import prepare_folder
+
+    prepare_folder(out, "evaluate", (study,), mode="add", force=force)
 
 
 def parse_numbers(text: str, option: str) -> tuple[float, ...]:
@@ -66,7 +74,7 @@ def _engines(cache: Path, device: str, progress: bool):
 @evaluate_app.command()
 def columns(
     model: Path = MODEL, out: Path = OUT, device: str = DEVICE, cache: Path = CACHE, examples: Path = EXAMPLE_DIR,
-    scale: float = SCALE, progress: bool = PROGRESS,
+    scale: float = SCALE, progress: bool = PROGRESS, force: bool = FORCE,
     aspects: str = typer.Option("0.5,1,2", help="Aspect ratios H0/L0 (0.5, 1 and/or 2: the example columns)."),
     phis: str = typer.Option("0,11.25,22.5,33.75,45", help="Friction angles (degrees)."),
     cohesions: str = typer.Option("10,25,40,55,70", help="Cohesions (kPa)."),
@@ -76,6 +84,7 @@ def columns(
     from runout.evaluate import ColumnGrid, run_columns
 
     _check_frames(frames)
+    _claim_out(out, "columns", force)
     grid = ColumnGrid(parse_numbers(aspects, "--aspects"), parse_numbers(phis, "--phis"),
                       parse_numbers(cohesions, "--cohesions"), frames, scale, examples)
     summary = run_columns(model, out, grid, _engines(cache, device, progress))
@@ -87,7 +96,7 @@ def columns(
 @evaluate_app.command()
 def slope(
     model: Path = MODEL, out: Path = OUT, device: str = DEVICE, cache: Path = CACHE, examples: Path = EXAMPLE_DIR,
-    scale: float = SCALE, progress: bool = PROGRESS,
+    scale: float = SCALE, progress: bool = PROGRESS, force: bool = FORCE,
     frames: int = typer.Option(None, help="Frames (default: the scene's 480)."),
     rerun_mpm: bool = typer.Option(False, "--rerun-mpm", help="Run the MPM again (not from the cache) to time it on this machine."),
 ) -> None:
@@ -95,6 +104,7 @@ def slope(
     from runout.evaluate import run_slope
 
     _check_frames(frames)
+    _claim_out(out, "slope", force)
     s = run_slope(model, out, _engines(cache, device, progress), examples, frames, scale, rerun_mpm)
     typer.echo(f"runout error left {s['runout_left_m']['ape_percent']:.2f} %, right {s['runout_right_m']['ape_percent']:.2f} %; "
                f"wall time MPM {s['wall_time_s']['mpm']:.4g} s, GNS {s['wall_time_s']['gns']:.4g} s")
@@ -104,7 +114,7 @@ def slope(
 @evaluate_app.command()
 def diagnostics(
     model: Path = MODEL, out: Path = OUT, device: str = DEVICE, cache: Path = CACHE, examples: Path = EXAMPLE_DIR,
-    scale: float = SCALE, progress: bool = PROGRESS,
+    scale: float = SCALE, progress: bool = PROGRESS, force: bool = FORCE,
     aspect: float = typer.Option(2.0, help="Aspect ratio of the column (0.5, 1 or 2)."),
     phi: float = typer.Option(11.25, help="Friction angle (degrees)."),
     c: float = typer.Option(10.0, "--c", help="Cohesion (kPa)."),
@@ -114,6 +124,7 @@ def diagnostics(
     from runout.evaluate import ColumnCase, run_diagnostics
 
     _check_frames(frames)
+    _claim_out(out, "diagnostics", force)
     s = run_diagnostics(model, out, _engines(cache, device, progress), ColumnCase(aspect, phi, c), frames, scale, examples)
     for f in s["frames"]:
         typer.echo(f"frame {f['frame']}: median velocity error {f['median_error_m_s']:.3g} m/s, "
@@ -124,7 +135,7 @@ def diagnostics(
 @evaluate_app.command()
 def inverse(
     model: Path = MODEL, out: Path = OUT, device: str = DEVICE, cache: Path = CACHE, examples: Path = EXAMPLE_DIR,
-    scale: float = SCALE, progress: bool = PROGRESS,
+    scale: float = SCALE, progress: bool = PROGRESS, force: bool = FORCE,
     frames: int = typer.Option(None, help="Frames of the MPM target and the rollout (default: the scene's 400)."),
     max_iterations: int = typer.Option(None, help="L-BFGS-B iterations (default: examples/dam_inverse.toml's)."),
 ) -> None:
@@ -134,6 +145,7 @@ def inverse(
     _check_frames(frames)
     if max_iterations is not None and max_iterations < 1:
         raise InputError(f"--max-iterations {max_iterations} must be a positive whole number.")
+    _claim_out(out, "inverse", force)
     s = run_inverse(model, out, _engines(cache, device, progress), examples, frames, scale, max_iterations, typer.echo)
     for p in s["parameters"]:
         typer.echo(f"{p['name']}: inferred {p['inferred']:.4g} {p['unit']} (true {p['true']}, bounds [{p['lower']:g}, {p['upper']:g}])")
@@ -144,7 +156,7 @@ def inverse(
 def sensitivity(
     data: Path = typer.Option(..., "--data", help="Dataset folder: train.npz, metadata.json and the held-out split."),
     init: Path = typer.Option(..., "--init", help="Checkpoint every subset is fine-tuned from."),
-    out: Path = OUT, device: str = DEVICE, progress: bool = PROGRESS,
+    out: Path = OUT, device: str = DEVICE, progress: bool = PROGRESS, force: bool = FORCE,
     sizes: str = typer.Option("10,50,100,250,500,750,1000", help="Subset sizes N (first N training simulations)."),
     steps: int = typer.Option(4_500_000, help="Fixed step budget per subset."),
     epochs: int = typer.Option(10, help="Fixed epoch budget per subset."),
@@ -157,6 +169,7 @@ def sensitivity(
     if split not in ("test", "valid"):
         raise InputError(f"--split {split!r} must be test or valid.")
     cfg = SensitivityConfig(data, init, parse_sizes(sizes), steps, epochs, held_out, split, device=device, progress=progress)
+    _claim_out(out, "sensitivity", force)
     s = run_sensitivity(cfg, out)
     for r in s["results"]:
         typer.echo(f"{r['budget']:>6} N = {r['size']:>5}: median rollout MSE {r['median_mse_m2']:.4g} m² "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import time
 from pathlib import Path
 
@@ -10,6 +11,11 @@ import typer
 
 from runout.cli.app import app
 from runout.errors import InputError
+
+MAX_ROLLOUT_FRAMES = 1_000_000  # as many as a scene may ask the MPM for
+MAX_STOP_SPEED = 100.0  # m/s
+MAX_NOISE_STD = 10.0  # m/s, training noise on velocities (paper: 0.067 m/s)
+ROLLOUT_FILES = ("trajectory.npz", "metadata.json", "snapshots.png", "metrics.json", "position_mse.png")
 
 
 @app.command()
@@ -34,14 +40,29 @@ def train(
     seed: int = typer.Option(0, "--seed", help="Seed of the initial weights, window sampling and noise."),
     bf16: bool = typer.Option(False, "--bf16", help="Autocast the network to bfloat16 (faster on CPUs with AMX and on GPUs)."),
     checkpoint_layers: bool = typer.Option(True, "--checkpoint-layers/--no-checkpoint-layers", help="Recompute processor steps in backward to save memory."),
+    force: bool = typer.Option(False, "--force", help="Start afresh in --out, removing a previous run or another command's results there."),
 ) -> None:
-    """Train the GNS on an MPM dataset (one process, or many under torchrun)."""
-    from runout.gns.simulator import NetworkConfig
-    from runout.train import TrainConfig, train as run_training
+    """Train the GNS on an MPM dataset (one process, or many under torchrun). Ctrl-C saves
+    the checkpoint of the last whole step (exit 130); --resume continues exactly."""
+    from runout.gns.simulator import NETWORK_LIMITS, NetworkConfig
+    from runout.outputs import check_folder, claim
+    from runout.train import BEST, CHECKPOINT, LOG, TrainConfig, train as run_training
 
-    for name, value in (("--steps", steps), ("--batch-size", batch_size), ("--save-every", save_every), ("--log-every", log_every)):
-        if value < 1:
-            raise InputError(f"{name} = {value} must be a positive whole number.")
+    for name, value, lo, hi in (
+        ("--steps", steps, 1, 1_000_000_000), ("--batch-size", batch_size, 1, 64),
+        ("--save-every", save_every, 1, 1_000_000_000), ("--log-every", log_every, 1, 1_000_000_000),
+        ("--valid-every", valid_every, 0, 1_000_000_000), ("--valid-trajectories", valid_trajectories, 1, 10_000),
+        ("--valid-frames", valid_frames, 0, MAX_ROLLOUT_FRAMES),
+        ("--latent", latent, *NETWORK_LIMITS["latent"]), ("--hidden", hidden, *NETWORK_LIMITS["hidden"]),
+        ("--message-passing-steps", message_passing, *NETWORK_LIMITS["message_passing_steps"]),
+    ):
+        check_range(name, value, lo, hi)
+    check_range("--noise-std", noise_std, 0.0, MAX_NOISE_STD, " m/s")
+    if not 0 < lr <= 1:
+        raise InputError(f"--lr = {lr:g} is outside the allowed range (0, 1].")
+    folder = check_folder(out, "train", (CHECKPOINT, BEST, LOG, "tensorboard"), mode="resume", force=force)
+    if int(os.environ.get("RANK", "0")) == 0:  # under torchrun only the writing process prepares it
+        claim(folder)
     cfg = TrainConfig(
         data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise_velocity_std=noise_std,
         seed=seed, device=device, resume=resume, init=init,
@@ -64,23 +85,36 @@ def rollout(
     index: int = typer.Option(0, "--index", help="For a dataset folder: which simulation of the split."),
     device: str = typer.Option("cpu", "--device", help="cpu, cuda or cuda:K."),
     animation: bool = typer.Option(True, "--animation/--no-animation", help="Write an animation (beside the MPM when there is one)."),
+    vtk: bool = typer.Option(False, "--vtk", help="Also write ParaView files: vtk/frame_*.vtu and vtk/trajectory.pvd."),
+    force: bool = typer.Option(False, "--force", help="Replace another command's results in --out (removing what this run does not rewrite)."),
 ) -> None:
     """Roll the GNS out from 6 frames until FRAMES or until the flow stops."""
-    from runout.gns import RolloutDiverged, load_simulator, rollout_trajectory
+    from runout.gns import load_simulator, rollout_trajectory
+    from runout.gns.figures import animation_name
+    from runout.gns.training_range import range_warnings
+    from runout.outputs import check_folder, claim
 
+    check_range("--frames", frames, 0, MAX_ROLLOUT_FRAMES)
+    check_range("--stop-speed", stop_speed, 0.0, MAX_STOP_SPEED, " m/s")
+    writes = ROLLOUT_FILES + ((animation_name(),) if animation else ()) + (("vtk",) if vtk else ())
+    folder = check_folder(out, "rollout", writes, force=force)
     simulator = load_simulator(model, device)
     initial, truth = _initial_state(source, split, index, simulator)
     n_frames = frames or (truth.n_frames if truth is not None else initial.info.get("frames", 480))
     if n_frames <= simulator.schema.history:
         raise InputError(f"--frames = {n_frames} must exceed the {simulator.schema.history} initial frames.")
+    check_rollout_memory(initial.n_points, n_frames, device)
+    for line in range_warnings(simulator, initial):
+        typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW)
     t0 = time.perf_counter()
-    try:
-        predicted = rollout_trajectory(simulator, initial, n_frames, stop_speed or None, progress=True)
-    except RolloutDiverged as exc:
-        typer.secho(f"error: {exc}", err=True, fg=typer.colors.RED)
-        raise typer.Exit(1) from None
+    predicted = rollout_trajectory(simulator, initial, n_frames, stop_speed or None, progress=True)  # RunFailed: exit 1
     predicted.info["wall_s"] = round(time.perf_counter() - t0, 3)
+    claim(folder)
     metrics = _write_outputs(predicted, truth, out, simulator.schema.material_width, animation)
+    if vtk:
+        from runout.vtk import write_vtk
+
+        metrics["vtk"] = str(write_vtk(predicted, out / "vtk"))
     typer.echo(json.dumps(metrics, indent=2))
 
 
@@ -125,6 +159,25 @@ def _dataset_trajectory(folder: Path, split: str, index: int, simulator):
 def _warn_ignored_cohesion(scene, simulator) -> None:
     if simulator.schema.material_width < 2 and any(m.cohesion > 0 for m in scene.materials.values()):
         typer.secho("warning: this model has no cohesion input; the scene's cohesion is ignored.", err=True, fg=typer.colors.YELLOW)
+
+
+def check_range(option: str, value, lo, hi, unit: str = "") -> None:
+    """InputError unless lo <= value <= hi (None passes: the option was not given)."""
+    if value is not None and not lo <= value <= hi:
+        raise InputError(f"{option} = {value:g} is outside the allowed range [{lo:g}, {hi:g}]{unit}.")
+
+
+def check_rollout_memory(points: int, frames: int, device: str) -> None:
+    """Refuse a rollout whose frames (float32 x, y, held about three times) exceed the memory."""
+    from runout.mpm.budget import GIB, device_memory
+
+    need = 3 * 8 * points * frames
+    have = device_memory(device)
+    if need > have:
+        raise InputError(
+            f"--frames = {frames} with {points} points needs about {need / GIB:.1f} GiB of memory but this "
+            f"machine has {have / GIB:.1f} GiB; ask for fewer frames."
+        )
 
 
 def _write_outputs(predicted, truth, out: Path, feature_width: int, animation: bool) -> dict:

@@ -20,13 +20,14 @@ def invert(
     fd_step: float = typer.Option(0.01, help="mpm-fd: finite-difference step as a fraction of each parameter's bounds."),
     checkpoint: bool = typer.Option(True, help="Recompute each rollout step in the backward pass (much less memory)."),
     plot_iterations: str = typer.Option(None, help="Iterations to draw in deposit.png, e.g. '0,1,last' (default: first, second, middle, last)."),
+    force: bool = typer.Option(False, "--force", help="Start afresh in --out, removing a previous history or another command's results there."),
 ) -> None:
     """Fit the spec's free material parameters (phi in degrees, c in kPa) to the target runout
     with L-BFGS-B inside their bounds; writes history.csv, history.json, loss.png,
     parameters.png and deposit.png, and prints the answer with its bounds."""
     import torch
 
-    from runout.errors import InputError
+    from runout.errors import InputError, Interrupted, RunFailed
     from runout.gns import RolloutDiverged
     from runout.inverse import invert as run_inversion, summary_lines
 
@@ -36,10 +37,12 @@ def invert(
         result = run_inversion(
             spec, out, model=model, device=device, starts=starts, engine=engine, fd_step=fd_step,
             checkpoint=checkpoint, plot_iterations=plot_iterations, log=typer.echo, progress=True,
+            warn=lambda line: typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW), force=force,
         )
     except RolloutDiverged as exc:
-        typer.secho(f"error: {exc} The history so far is in {out}.", err=True, fg=typer.colors.RED)
-        raise typer.Exit(1)
+        raise RunFailed(f"{str(exc).rstrip('.')}; the history so far is in {out}.") from None
+    except KeyboardInterrupt:
+        raise Interrupted(f"the evaluations so far are in {out}, and the same command resumes from them.") from None
     for line in summary_lines(result):
         typer.echo(line)
     where = f"{out}/start_*/" if starts > 1 else f"{out}/"

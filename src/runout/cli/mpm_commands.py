@@ -8,6 +8,9 @@ import typer
 
 from runout.cli.app import app
 
+FORCE = typer.Option(False, "--force", help="Replace another command's results in --out (removing what this run does not rewrite).")
+MPM_FILES = ("trajectory.npz", "metadata.json", "initial.png", "final.png")
+
 
 @app.command()
 def mpm(
@@ -16,11 +19,16 @@ def mpm(
     device: str = typer.Option("cpu", help="cpu or cuda."),
     frames: int = typer.Option(None, help="Output frames including frame 0 (default: the scene's [time] frames)."),
     animate: bool = typer.Option(True, help="Write animation.gif."),
+    vtk: bool = typer.Option(False, "--vtk", help="Also write ParaView files: vtk/frame_*.vtu and vtk/trajectory.pvd."),
     compile: bool = typer.Option(False, help="torch.compile the substep: faster on long runs, slow to start."),
+    force: bool = FORCE,
 ) -> None:
     """Run the MPM on a scene: writes trajectory.npz + metadata.json (GNS layout, material
     features [tan phi, c/100 kPa]), initial.png, final.png and animation.gif."""
+    from runout.errors import RunFailed
     from runout.mpm import simulate
+    from runout.mpm.budget import check_budget
+    from runout.outputs import check_folder, claim
     from runout.plots import save_animation, save_frame
     from runout.scene import load_scene
     from runout.trajectory import save_trajectory
@@ -28,30 +36,43 @@ def mpm(
     sc = load_scene(scene)
     if frames is not None:
         sc = sc.with_frames(frames)
+    writes = MPM_FILES + (("animation.gif",) if animate else ()) + (("vtk",) if vtk else ())
+    folder = check_folder(out, "mpm", writes, force=force)
+    check_budget([sc], device=device, source=str(scene))
     traj = simulate([sc], device=device, compile=compile)[0]
-    out.mkdir(parents=True, exist_ok=True)
+    bad = traj.first_nonfinite_frame()
+    if bad is not None:
+        raise RunFailed(f"the MPM run of {scene} diverged (positions are not finite from frame {bad}); "
+                        "lower time.cfl or check the materials.")
+    claim(folder)
     save_trajectory(traj, out)
     save_frame(traj, 0, out / "initial.png")
     save_frame(traj, traj.n_frames - 1, out / "final.png")
     if animate:
         save_animation([traj], out / "animation.gif", labels=["MPM"])
+    if vtk:
+        from runout.vtk import write_vtk
+
+        write_vtk(traj, out / "vtk")
     info = traj.info
     typer.echo(
         f"{traj.n_points} points, {traj.n_frames} frames, {info['substeps_per_frame']} substeps/frame, "
-        f"{info['wall_time_s']:.1f} s; wrote {out}/trajectory.npz, metadata.json, initial.png, final.png"
-        + (", animation.gif" if animate else "")
+        f"{info['wall_time_s']:.1f} s; wrote {out}/" + ", ".join(writes)
     )
 
 
 @app.command()
 def show(
     scene: Path = typer.Argument(..., help="Scene file (TOML or JSON)."),
-    out: Path = typer.Option(Path("scene.png"), "--out", help="PNG to write."),
+    out: Path = typer.Option(Path("scene.png"), "--out", help="Picture to write (.png, .pdf or .svg)."),
 ) -> None:
     """Draw a scene's regions and materials without simulating."""
+    from runout.outputs import check_picture
     from runout.plots import draw_scene
     from runout.scene import fill_points, load_scene
 
     sc = load_scene(scene)
-    draw_scene(sc, out)
-    typer.echo(f"{len(fill_points(sc))} points; wrote {out}")
+    check_picture(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    written = draw_scene(sc, out)
+    typer.echo(f"{len(fill_points(sc))} points; wrote {written}")

@@ -40,6 +40,7 @@ def checkpoint_dict(simulator: Simulator, **training_state) -> dict:
         "radius": simulator.radius,
         "network": asdict(simulator.config),
         "model": simulator.state_dict(),
+        **({"data_ranges": simulator.data_ranges} if simulator.data_ranges else {}),
         **training_state,
     }
 
@@ -113,6 +114,9 @@ def check_contents(ckpt: dict, path) -> None:
     problem = Normalisation.problem(ckpt["stats"])
     if problem:
         raise InputError(f"{path}: stats.{problem}.")
+    ranges = ckpt.get("data_ranges")
+    if ranges is not None and not isinstance(ranges, dict):
+        raise InputError(f"{path}: the checkpoint's 'data_ranges' is a {type(ranges).__name__}; expected a table.")
 
 
 def _check_table(table: dict, known: set[str], where: str, path, require: bool = False) -> None:
@@ -139,6 +143,7 @@ def simulator_from_checkpoint(ckpt: dict, source: str | Path = "<checkpoint>") -
         simulator.load_state_dict(ckpt["model"])
     except (RuntimeError, TypeError, AttributeError):
         raise InputError(f"{source}: the model weights do not match the schema and layer sizes it declares.") from None
+    simulator.data_ranges = ckpt.get("data_ranges")
     return simulator
 
 

@@ -64,6 +64,11 @@ def save_error_plot(mse: np.ndarray, frame_dt: float, path: str | Path) -> Path:
     return Path(path)
 
 
+def animation_name(stem: str = "animation") -> str:
+    """The file save_animation writes: .mp4 when ffmpeg is installed, else .gif."""
+    return stem + (".mp4" if shutil.which("ffmpeg") else ".gif")
+
+
 def save_animation(gns: Trajectory, mpm: Trajectory | None, path: str | Path, fps: int = 15, max_frames: int = 80) -> Path:
     """The GNS rollout, beside the MPM when given; .mp4 if ffmpeg exists, else .gif."""
     trajs = [(gns, "GNS")] + ([(mpm, "MPM")] if mpm is not None else [])
@@ -76,11 +81,10 @@ def save_animation(gns: Trajectory, mpm: Trajectory | None, path: str | Path, fp
             _draw(ax, traj, int(f), f"{label}: t = {f * traj.frame_dt:.2f} s")
 
     anim = animation.FuncAnimation(fig, draw, frames=frames)
-    if shutil.which("ffmpeg"):
-        path = Path(path).with_suffix(".mp4")
+    path = Path(path).with_name(animation_name(Path(path).stem))
+    if path.suffix == ".mp4":
         anim.save(path, writer=animation.FFMpegWriter(fps=fps), dpi=90)
     else:
-        path = Path(path).with_suffix(".gif")
         anim.save(path, writer=animation.PillowWriter(fps=fps), dpi=70)
     plt.close(fig)
     return path

@@ -90,6 +90,7 @@ class Simulator(nn.Module):
         self.stats = stats
         self.radius = float(radius)  # m, connectivity radius R
         self.config = config
+        self.data_ranges: dict | None = None  # what it was trained on (runout.gns.training_range)
         self.type_embedding = nn.Embedding(schema.particle_types, schema.type_embedding)
         self.network = EncodeProcessDecode(
             schema.node_width, schema.edge_width, schema.dim,

@@ -19,20 +19,27 @@ def default_iterations(available: list[int]) -> list[int]:
     return sorted(set(picks))
 
 
-def parse_iterations(text: str | None, available: list[int]) -> list[int]:
-    """'0,3,last' -> iteration numbers; None -> default_iterations."""
+def check_iterations(text: str | None, max_iterations: int) -> list[int | str] | None:
+    """'0,3,last' -> [0, 3, 'last'], checked before the run: whole numbers up to the spec's
+    max_iterations, or 'last'; None -> None (the default choice)."""
     if text is None:
-        return default_iterations(available)
-    chosen = []
-    for item in text.split(","):
-        item = item.strip()
-        number = available[-1] if item == "last" else int(item) if item.isdigit() else None
-        if number is None or number not in available:
+        return None
+    items = [item.strip() for item in text.split(",")]
+    for item in items:
+        if item != "last" and not (item.isdigit() and int(item) <= max_iterations):
             raise InputError(
-                f"--plot-iterations: '{item}' is not one of the run's iterations 0-{available[-1]} or 'last'."
+                f"--plot-iterations: '{item}' is neither 'last' nor an iteration number in [0, {max_iterations}] "
+                "(the spec's optimiser.max_iterations)."
             )
-        chosen.append(number)
-    return sorted(set(chosen))
+    return [item if item == "last" else int(item) for item in items]
+
+
+def pick_iterations(chosen: list[int | str] | None, available: list[int]) -> tuple[list[int], list[int]]:
+    """(iterations to draw, requested ones the run did not reach because it stopped early)."""
+    if chosen is None:
+        return default_iterations(available), []
+    numbers = [available[-1] if item == "last" else item for item in chosen]
+    return sorted({n for n in numbers if n in available}), sorted({n for n in numbers if n not in available})
 
 
 def draw_loss(history: History, path: Path) -> None:

@@ -53,20 +53,30 @@ def deposit_path(out_dir: Path, evaluation: int) -> Path:
     return Path(out_dir) / DEPOSITS / f"eval_{evaluation:04d}.npy"
 
 
+class EvaluationsSpent(Exception):
+    """L-BFGS-B asked for one evaluation more than optimiser.max_evaluations allows."""
+
+
 class RecordedObjective:
     """scipy's fun(u) -> (loss, d loss / d u). Calls that a history already holds are replayed
-    from it in order; new ones are evaluated, recorded and written before returning."""
+    from it in order; new ones are evaluated, recorded and written before returning. The
+    call after max_evaluations raises EvaluationsSpent (scipy's maxfun is checked only
+    between iterations, so a line search could overrun it)."""
 
-    def __init__(self, evaluate: Evaluator, free: tuple[FreeParameter, ...], history: History, log: Log | None):
+    def __init__(self, evaluate: Evaluator, free: tuple[FreeParameter, ...], history: History, log: Log | None,
+                 max_evaluations: int | None = None):
         self.evaluate = evaluate
         self.free = free
         self.history = history
         self.log = log
+        self.max_evaluations = max_evaluations
         self.calls = 0
         self.iteration = 0
 
     def __call__(self, u: np.ndarray) -> tuple[float, np.ndarray]:
         k = self.calls
+        if self.max_evaluations is not None and k >= self.max_evaluations:
+            raise EvaluationsSpent
         self.calls += 1
         if k < len(self.history.records):
             record = self._replay(k, u)
@@ -135,20 +145,26 @@ def minimise(
     history.resume_from_disk()
     if log and history.records:
         log(f"{out_dir}: replaying {len(history.records)} recorded evaluations")
-    objective = RecordedObjective(evaluate, free, history, log)
-    result = scipy.optimize.minimize(
-        objective, np.asarray(start, dtype=np.float64), method="L-BFGS-B", jac=True,
-        bounds=[(0.0, 1.0)] * len(free), callback=objective.accept,
-        options={"maxiter": options.max_iterations, "maxfun": options.max_evaluations,
-                 "ftol": options.ftol, "gtol": options.gtol},
-    )
-    values = to_physical(free, result.x)
+    objective = RecordedObjective(evaluate, free, history, log, options.max_evaluations)
+    try:
+        result = scipy.optimize.minimize(
+            objective, np.asarray(start, dtype=np.float64), method="L-BFGS-B", jac=True,
+            bounds=[(0.0, 1.0)] * len(free), callback=objective.accept,
+            options={"maxiter": options.max_iterations, "maxfun": options.max_evaluations,
+                     "ftol": options.ftol, "gtol": options.gtol},
+        )
+        x, loss, iterations, evaluations = result.x, float(result.fun), int(result.nit), int(result.nfev)
+        message, success = str(result.message), bool(result.success)
+    except EvaluationsSpent:
+        best = min(history.records, key=lambda r: r.loss)
+        x, loss, iterations, evaluations = np.array(best.normalised), best.loss, objective.iteration, objective.calls
+        message, success = f"STOP: max_evaluations = {options.max_evaluations} reached (best evaluation kept)", False
+    values = to_physical(free, x)
     history.finish({
-        "values": values.tolist(), "loss": float(result.fun), "iterations": int(result.nit),
-        "evaluations": int(result.nfev), "message": str(result.message), "success": bool(result.success),
+        "values": values.tolist(), "loss": loss, "iterations": iterations,
+        "evaluations": evaluations, "message": message, "success": success,
     })
-    return StartResult(Path(out_dir), to_physical(free, start), values, float(result.fun),
-                       int(result.nit), int(result.nfev), str(result.message), history)
+    return StartResult(Path(out_dir), to_physical(free, start), values, loss, iterations, evaluations, message, history)
 
 
 def starting_points(free: tuple[FreeParameter, ...], count: int) -> np.ndarray:

@@ -9,15 +9,19 @@ from pathlib import Path
 import numpy as np
 
 from runout.errors import InputError
-from runout.inverse.figures import draw_deposits, draw_loss, draw_parameters, draw_starts, parse_iterations
+from runout.inverse.figures import (
+    check_iterations, default_iterations, draw_deposits, draw_loss, draw_parameters, draw_starts, pick_iterations,
+)
 from runout.inverse.history import RunInfo
 from runout.inverse.memory import PeakMemory
 from runout.inverse.observation import Observation, load_observation
 from runout.inverse.optimise import Log, StartResult, run_starts, spread
 from runout.inverse.spec import InverseSpec, load_inverse_spec
+from runout.outputs import check_folder, claim
 from runout.scene import PARTICLE_TYPE_KINEMATIC
 
 ENGINES = ("gns", "mpm-fd")
+MAX_STARTS = 100
 
 
 @dataclass
@@ -43,47 +47,74 @@ def invert(
     plot_iterations: str | None = None,
     log: Log | None = None,
     progress: bool = False,
+    warn: Log | None = None,
+    force: bool = False,
 ) -> InversionResult:
     """Back-calculate the spec's free parameters; write histories and figures to out_dir.
 
-    A run killed part-way resumes when called again with the same arguments. `log` receives
-    one line per evaluation; `progress` shows a bar over each forward run."""
+    A run killed part-way resumes when called again with the same arguments (force: start
+    afresh). `log` receives one line per evaluation, `warn` each warning (e.g. a value
+    outside the model's training range); `progress` shows a bar over each forward run."""
     if engine not in ENGINES:
         raise InputError(f"--engine {engine!r} must be one of {', '.join(ENGINES)}.")
-    if starts < 1:
-        raise InputError(f"--starts {starts} must be at least 1.")
+    if not 1 <= starts <= MAX_STARTS:
+        raise InputError(f"--starts {starts} is outside the allowed range [1, {MAX_STARTS}].")
     spec = load_inverse_spec(spec_path)
+    chosen = check_iterations(plot_iterations, spec.optimiser.max_iterations)
+    folder = check_folder(out_dir, "invert", _writes(starts), mode="resume", force=force)
     observation = load_observation(spec)
-    evaluate, model_name = _evaluator(spec, observation, engine, model, device, fd_step, checkpoint, progress)
+    evaluate, model_name = _evaluator(spec, observation, engine, model, device, fd_step, checkpoint, progress, warn)
+    claim(folder)
     info = RunInfo(digest=spec.digest, engine=engine, model=model_name, start=[])
     results = run_starts(
         evaluate, spec.free, starts, Path(out_dir), info, spec.optimiser,
         PeakMemory(device).measure, observation.true_values, log,
     )
     for result in results:
-        _draw(result, observation, plot_iterations)
+        _draw(result, observation, chosen, warn)
     inversion = InversionResult(spec, results, spread(results, spec.free))
     if starts > 1:
         _write_starts(inversion, Path(out_dir))
     return inversion
 
 
-def _evaluator(spec, observation, engine, model, device, fd_step, checkpoint, progress):
+def _writes(starts: int) -> tuple[str, ...]:
+    per_start = ("history.json", "history.csv", "loss.png", "parameters.png", "deposit.png", "deposits")
+    if starts == 1:
+        return per_start
+    return tuple(f"start_{k:02d}" for k in range(starts)) + ("starts.json", "starts.csv", "starts.png")
+
+
+def _evaluator(spec, observation, engine, model, device, fd_step, checkpoint, progress, warn):
     if engine == "mpm-fd":
         from runout.inverse.mpm_fd import MpmFiniteDifference
+        from runout.mpm.budget import check_budget
 
+        check_budget([spec.scene] * (2 * len(spec.free) + 1), observation.frames[-1] + 1, device, str(spec.source))
         return MpmFiniteDifference(spec, observation, fd_step, device, progress), ""
+    from runout.gns import scene_at_rest
+    from runout.gns.training_range import bound_warnings, range_warnings
     from runout.inverse.forward import inverse_problem, load_model
 
     simulator = load_model(None if model is None else Path(model), device)
+    if warn is not None:
+        lines = range_warnings(simulator, scene_at_rest(spec.scene), f"the scene of {spec.source}")
+        for p in spec.free:
+            lines += bound_warnings(simulator, p.name, p.unit, p.lower, p.upper)
+        for line in lines:
+            warn(line)
     return inverse_problem(spec, observation, simulator, checkpoint, progress).evaluate, str(Path(model).resolve())
 
 
-def _draw(result: StartResult, observation: Observation, plot_iterations: str | None) -> None:
+def _draw(result: StartResult, observation: Observation, chosen, warn: Log | None) -> None:
     history = result.history
     draw_loss(history, result.out_dir / "loss.png")
     draw_parameters(history, result.out_dir / "parameters.png")
-    iterations = parse_iterations(plot_iterations, [r.iteration for r in history.iterations])
+    available = [r.iteration for r in history.iterations]
+    iterations, missed = pick_iterations(chosen, available)
+    if missed and warn is not None:
+        warn(f"--plot-iterations {', '.join(map(str, missed))} not drawn, because the run stopped after iteration {available[-1]}.")
+    iterations = iterations or default_iterations(available)
     moving = observation.particle_type != PARTICLE_TYPE_KINEMATIC
     draw_deposits(history, observation.positions[-1], observation.material_id, moving, iterations,
                   result.out_dir / "deposit.png")

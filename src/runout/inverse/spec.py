@@ -15,14 +15,14 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from runout.errors import InputError
-from runout.scene import Scene, load_scene
+from runout.scene import MAX_STRENGTH, Scene, load_scene
 
 INPUT_FRAMES = 6  # a rollout is seeded with 6 position frames
 
 # spec key -> (Material field, unit, smallest allowed value, largest allowed value)
 PROPERTIES = {
     "phi": ("friction_angle", "degrees", 0.0, 60.0),
-    "c": ("cohesion", "kPa", 0.0, math.inf),
+    "c": ("cohesion", "kPa", 0.0, MAX_STRENGTH),
 }
 WEIGHTINGS = ("uniform", "displacement")
 
@@ -206,7 +206,7 @@ def _parameters(table, scene: Scene, source: Path):
     if not free:
         raise InputError(f"{source}: nothing to optimise; give at least one property 'lower' and 'upper' bounds.")
     for p in free:
-        _check_deformable(scene, p.material, source)
+        _check_deformable(scene, p, source)
     return fixed, tuple(free)
 
 
@@ -244,11 +244,16 @@ def _check_allowed(value: float, prop: str, where: str, source: Path) -> None:
         raise InputError(f"{source}: {where} = {value:g} is outside the allowed range [{lo:g}, {hi_txt}] {unit}.")
 
 
-def _check_deformable(scene: Scene, material: str, source: Path) -> None:
-    regions = [r for r in scene.regions if r.material == material]
+def _check_deformable(scene: Scene, p: "FreeParameter", source: Path) -> None:
+    regions = [r for r in scene.regions if r.material == p.material]
     if not regions or all(r.fixed for r in regions):
         raise InputError(
-            f"{source}: material '{material}' has no moving (non-fixed) region, so its strength cannot affect the runout."
+            f"{source}: material '{p.material}' has no moving (non-fixed) region, so its strength cannot affect the runout."
+        )
+    if scene.materials[p.material].model == "elastic":
+        raise InputError(
+            f"{source}: parameters.{p.material}.{p.prop} cannot be optimised, because material '{p.material}' is "
+            "elastic and has no strength (give it model = \"mohr-coulomb\" in the scene)."
         )
 
 
