@@ -1,10 +1,11 @@
-"""MPM trajectories cached on disk, keyed by a hash of the scene's TOML.
+"""MPM trajectories cached on disk, keyed by a hash of the solver's version and the scene's TOML.
 
 The MPM is the slow, deterministic half of every comparison, so each trajectory is written
 once to CACHE/<key>/ (trajectory.npz, metadata.json and the scene.toml it came from) and
 reused by reruns and by every other model. Missing scenes run together in ONE batched
 `runout.mpm.simulate` call. The key covers the whole scene (domain, time, materials,
-regions, name) but not the solver's code: clear the cache after changing the MPM.
+regions, name) and `runout.mpm.SOLVER_VERSION`, so a changed solver never serves an old
+result; entries of other versions stay on disk until the cache folder is cleared.
 """
 
 from __future__ import annotations
@@ -14,16 +15,17 @@ import platform
 from dataclasses import dataclass
 from pathlib import Path
 
-from runout.mpm import simulate
+from runout.mpm import SOLVER_VERSION, simulate
 from runout.scene import Scene, scene_to_toml
 from runout.trajectory import Trajectory, load_trajectory, save_trajectory
 
 DEFAULT_CACHE = Path.home() / ".cache" / "runout" / "mpm"
 
 
-def scene_key(scene: Scene) -> str:
-    """First 20 hex digits of the sha256 of the scene's TOML text."""
-    return hashlib.sha256(scene_to_toml(scene).encode()).hexdigest()[:20]
+def scene_key(scene: Scene, solver_version: str = SOLVER_VERSION) -> str:
+    """First 20 hex digits of the sha256 of the solver version and the scene's TOML text."""
+    text = f"runout.mpm.SOLVER_VERSION = {solver_version!r}\n" + scene_to_toml(scene)
+    return hashlib.sha256(text.encode()).hexdigest()[:20]
 
 
 @dataclass
@@ -52,6 +54,7 @@ class MpmCache:
 
     def _store(self, scene: Scene, traj: Trajectory, device: str) -> None:
         folder = self.path(scene)
-        traj.info.update({"host": platform.node(), "device": str(device), "scene_key": scene_key(scene)})
+        traj.info.update({"host": platform.node(), "device": str(device), "scene_key": scene_key(scene),
+                          "solver_version": SOLVER_VERSION})
         save_trajectory(traj, folder)
         (folder / "scene.toml").write_text(scene_to_toml(scene))

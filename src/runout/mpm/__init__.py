@@ -19,6 +19,8 @@ from runout.mpm.batch import build_batch, run_batch, substeps_per_frame
 from runout.scene import Scene
 from runout.trajectory import Trajectory
 
+SOLVER_VERSION = "2"
+
 __all__ = ["simulate", "substeps_per_frame"]
 
 
