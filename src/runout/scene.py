@@ -51,7 +51,8 @@ class TimeSpec:
     frame_dt: float = 0.0375  # s between output frames
     frames: int = 480
     cfl: float = 0.4  # Courant number on dx / (c_p + v_max); the substep count follows
-    flip: float = 0.99  # FLIP share of the point-velocity update (the rest PIC/APIC)
+    flip: float = 0.0  # FLIP share of the point-velocity update (the rest APIC); see docs/scene-format.md
+    damping: float = 0.0  # local (Cundall) damping share of the unbalanced nodal force (the reference MPM used 0.05)
 
 
 @dataclass(frozen=True)
@@ -117,7 +118,7 @@ class Scene:
 # ----------------------------------------------------------------------------- parsing
 
 _DOMAIN_KEYS = {"width", "height", "cell_size", "points_per_cell", "base_friction", "wall_friction"}
-_TIME_KEYS = {"frame_dt", "frames", "cfl", "flip"}
+_TIME_KEYS = {"frame_dt", "frames", "cfl", "flip", "damping"}
 _MATERIAL_KEYS = {
     "model", "friction_angle", "cohesion", "youngs_modulus", "poisson_ratio", "density", "k0",
     "tension_cutoff",
@@ -191,7 +192,8 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
         frame_dt=_number(t, "frame_dt", "time", source, 0.0375),
         frames=frames,
         cfl=_number(t, "cfl", "time", source, 0.4),
-        flip=_number(t, "flip", "time", source, 0.99),
+        flip=_number(t, "flip", "time", source, TimeSpec.flip),
+        damping=_number(t, "damping", "time", source, TimeSpec.damping),
     )
 
     mats_in = data["materials"]
@@ -355,6 +357,7 @@ def validate_scene(scene: Scene, source: str = "<scene>") -> None:
     _in_range(t.frames, 1, MAX_FRAMES, "frames", "time", source)
     _in_range(t.cfl, 0, 1, "cfl", "time", source, lo_open=True)
     _in_range(t.flip, 0, 1, "flip", "time", source)
+    _in_range(t.damping, 0, 0.5, "damping", "time", source)
     for name, m in scene.materials.items():
         where = f"materials.{name}"
         _in_range(m.friction_angle, 0, 60, "friction_angle", where, source, " degrees")

@@ -19,7 +19,7 @@ from runout.mpm.batch import build_batch, run_batch, substeps_per_frame
 from runout.scene import Scene
 from runout.trajectory import Trajectory
 
-SOLVER_VERSION = "2"
+SOLVER_VERSION = "3"  # 3: consistent tension cut-off return, APIC + local damping 0.05, longer geostatic relaxation
 
 __all__ = ["simulate", "substeps_per_frame"]
 
@@ -41,7 +41,7 @@ def simulate(
     groups: dict[tuple, list[int]] = defaultdict(list)
     for k, s in enumerate(scenes):
         n = frames if frames is not None else s.time.frames
-        key = (s.domain.cell_size, s.domain.points_per_cell, s.time.frame_dt, s.time.flip, n, substeps_per_frame(s))
+        key = (s.domain.cell_size, s.domain.points_per_cell, s.time.frame_dt, s.time.flip, s.time.damping, n, substeps_per_frame(s))
         groups[key].append(k)
     out: list[Trajectory | None] = [None] * len(scenes)
     for (*_, n, _), members in groups.items():

@@ -20,7 +20,7 @@ from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
 
 GRAVITY = 9.81
-RELAX_PERIODS = 1.5  # length of the geostatic relaxation in periods of the slowest mode
+RELAX_PERIODS = 3.0  # length of the geostatic relaxation in periods of the slowest mode
 
 
 def substeps_per_frame(scene: Scene) -> int:
@@ -46,6 +46,7 @@ class Batch:
     n_sub: int
     dt: float
     flip: float
+    damping: float
     moving_index: list[np.ndarray]  # per scene: indices of its moving points in its output order
     fixed_xy: list[np.ndarray]  # per scene: fixed point positions
     order: list[tuple[np.ndarray, np.ndarray, np.ndarray]]  # per scene: (moving mask, ptype, material id)
@@ -107,11 +108,11 @@ def build_batch(scenes: list[Scene], device: torch.device, dtype: torch.dtype) -
     if len(fixed_pos):
         fscene_t = t(np.concatenate(fscene), torch.long)
         fny = grid.ny_nodes[fscene_t]
-        ids, w, ffx = stencil(t(fixed_pos, dtype), grid.node_offset[fscene_t], fny, stencil_offsets(fny), dx)
+        ids, w, _ = stencil(t(fixed_pos, dtype), grid.node_offset[fscene_t], fny, stencil_offsets(fny), dx)
         spacing = scenes[0].domain.point_spacing
         full = float(np.max(np.concatenate(fmass))) / spacing**2 * dx**2
         surface, normal, grid.stuck = fixed_ground_contact(
-            t(np.concatenate(fmass), dtype), ids, w, ffx, size, full, dx
+            t(np.concatenate(fmass), dtype), ids, w, size, full, shapes, offsets
         )
         mu = torch.as_tensor(
             [scenes[k].domain.base_friction for k in np.searchsorted(offsets, surface.cpu().numpy(), "right") - 1],
@@ -137,7 +138,7 @@ def build_batch(scenes: list[Scene], device: torch.device, dtype: torch.dtype) -
     )
     n_sub = substeps_per_frame(scenes[0])
     time = scenes[0].time
-    return Batch(scenes, grid, pts, n_sub, time.frame_dt / n_sub, time.flip, moving_index, fixed_xy, order)
+    return Batch(scenes, grid, pts, n_sub, time.frame_dt / n_sub, time.flip, time.damping, moving_index, fixed_xy, order)
 
 
 def _wall_constraints(scenes, shapes, offsets) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -179,9 +180,12 @@ def _material_rows(mats, material_id: np.ndarray) -> np.ndarray:
 def relax_geostatic(batch: Batch, step=substep) -> int:
     """Bring the K0 stresses into the discrete equilibrium of this grid before release.
 
-    Damped elastic dynamics with the points held in place: stresses absorb the strain the
-    grid would impose until grid forces balance gravity, then the velocities are reset and
-    the Mohr-Coulomb surface is applied once. Per scene, the viscous damping critically
+    Damped elastic-plastic dynamics with the points held in place: stresses absorb the strain
+    the grid would impose, through the materials' own yield and tension cut-off, until grid
+    forces balance gravity; then the velocities are reset. The start is so statically and
+    plastically admissible wherever the scene can stand: a cut whose crest cracks in tension
+    has cracked before release, instead of opening (and being counted as moving) after it.
+    A scene that cannot stand still fails on release. Per scene, the viscous damping critically
     damps the slowest vertical mode, 4 H / c_p in period for its tallest body H, and
     RELAX_PERIODS such periods are run; a scene that has finished holds its stresses while
     others go on,
@@ -200,8 +204,6 @@ def relax_geostatic(batch: Batch, step=substep) -> int:
     damping = torch.clamp(4 * math.pi * batch.dt / period, max=0.5)[pts.scene][:, None]
     steps_p = steps[pts.scene]
     x0, v0 = pts.x.clone(), pts.v.clone()
-    plastic = pts.mat.plastic
-    pts.mat.plastic = torch.zeros_like(plastic)
     pts.v = torch.zeros_like(v0)
     total = int(steps.max())
     for k in range(total):
@@ -211,7 +213,6 @@ def relax_geostatic(batch: Batch, step=substep) -> int:
         pts.x = x0
         pts.v = pts.v * (1 - damping)
         pts.C = pts.C * (1 - damping)[:, :, None]
-    pts.mat.plastic = plastic
     pts.x, pts.v = x0, v0
     pts.C = torch.zeros_like(pts.C)
     pts.volume = torch.full_like(pts.volume, float(batch.scenes[0].domain.point_spacing) ** 2)
@@ -236,7 +237,7 @@ def run_batch(batch: Batch, frames: int, progress: bool = True, compile: bool = 
     with torch.no_grad():
         for _ in tqdm(range(frames - 1), desc=f"MPM {n_scenes} scene(s)", unit="frame", disable=not progress):
             for _ in range(batch.n_sub):
-                step(pts, grid, batch.dt, batch.flip)
+                step(pts, grid, batch.dt, batch.flip, batch.damping)
             record.append(pts.x.to("cpu", torch.float32))
             ke, pe = energies(pts, n_scenes)
             kinetic.append(ke.cpu())

@@ -8,7 +8,8 @@ For psi = 0 the plastic flow is purely deviatoric in the plane, so the exact ret
 in-plane mean stress s = (sxx + syy) / 2 and scales the Mohr-circle radius
 t = sqrt(((sxx - syy) / 2)^2 + sxy^2) down to the yield radius c cos(phi) - s sin(phi);
 beyond the apex (s > c / tan phi) the state returns to the apex. phi = 0 is Tresca with
-s_u = c. The tension cut-off caps the major principal stress at T <= c / tan(phi).
+s_u = c. The tension cut-off caps the principal stresses at T <= c / tan(phi), with its own
+(associated, Rankine) flow rule: see return_map.
 """
 
 from __future__ import annotations
@@ -51,26 +52,68 @@ def elastic_trial(stress: torch.Tensor, strain: torch.Tensor, mat: MaterialArray
 
 
 def return_map(stress: torch.Tensor, mat: MaterialArrays) -> torch.Tensor:
-    """Project the trial stress onto the Mohr-Coulomb / tension cut-off surface (psi = 0)."""
+    """Project the trial stress onto the Mohr-Coulomb (psi = 0) / tension cut-off surface.
+
+    A multi-surface return in the in-plane principal stresses (s1 >= s3, directions kept),
+    each surface with its own flow rule and the plane-strain elastic law (lambda, G):
+    - shear, f_s = t + s sin(phi) - c cos(phi), potential t (psi = 0): the plastic strain is
+      deviatoric in the plane, so s stays and the radius t falls to c cos(phi) - s sin(phi);
+    - tension, f_t = s1 - T, associated (Rankine): the plastic strain is an opening along the
+      major principal direction only, so s1 falls to T and s3, szz fall by lambda / (lambda + 2G)
+      of that drop. Keeping s3 instead (the old return) hides a plastic shortening across the
+      crack in that step, through which gravity creeps a no-tension face down and out;
+    - their corner (s1 = T, s3 on the shear line) and the tension apex (s1 = s3 = T).
+    The first active set whose multipliers are non-negative and whose result is admissible is
+    taken (shear or tension alone, the closer in energy when both are; then the corner; then
+    the apex). szz is then kept between the in-plane principal stresses."""
     sxx, syy, sxy, szz = stress.unbind(1)
     s = 0.5 * (sxx + syy)
-    dx = 0.5 * (sxx - syy)
-    t = torch.sqrt(dx * dx + sxy * sxy)
-    # shear surface: t <= c cos(phi) - s sin(phi); the apex when that radius is negative
-    t_yield = mat.cohesion * mat.cos_phi - s * mat.sin_phi
-    apex = t_yield < 0
-    s = torch.where(apex, mat.cohesion * mat.cos_phi / mat.sin_phi.clamp_min(1e-12), s)
-    t_new = torch.minimum(t, t_yield.clamp_min(0.0))
-    # tension cut-off on the major principal stress s + t <= T, keeping the minor one
-    sigma3 = s - t_new
-    over = s + t_new > mat.tension
-    s_cut = 0.5 * (mat.tension + torch.minimum(sigma3, mat.tension))
-    t_cut = 0.5 * (mat.tension - torch.minimum(sigma3, mat.tension))
-    s = torch.where(over, s_cut, s)
-    t_new = torch.where(over, t_cut, t_new)
-    scale = torch.where(t > 0, t_new / t.clamp_min(1e-30), torch.zeros_like(t))
-    szz = torch.minimum(torch.maximum(szz, s - t_new), s + t_new)
-    returned = torch.stack((s + scale * dx, s - scale * dx, scale * sxy, szz), dim=1)
+    d = 0.5 * (sxx - syy)
+    t = torch.sqrt(d * d + sxy * sxy)
+    s1, s3 = s + t, s - t
+    sin, cos, c, cut = mat.sin_phi, mat.cos_phi, mat.cohesion, mat.tension
+    lam, g = mat.lam, mat.shear
+    k = lam + 2 * g  # constrained modulus
+    f_s = t + s * sin - c * cos
+    f_t = s1 - cut
+
+    # shear alone: radius to the yield radius at constant s (needs a non-negative yield radius)
+    t_a = c * cos - s * sin
+    ok_a = (f_s > 0) & (t_a >= 0) & (s + t_a <= cut)
+    a1, a3 = s + t_a, s - t_a
+    # tension alone: s1 -> T; s3 and szz follow through lambda
+    drop = f_t * (lam / k)
+    b1, b3 = cut.expand_as(s1), s3 - drop
+    ok_b = (f_t > 0) & (b3 <= cut) & (0.5 * (b1 - b3) + 0.5 * (b1 + b3) * sin - c * cos <= 0)
+    both = ok_a & ok_b
+    closer_a = f_s * f_s / g <= f_t * f_t / k  # complementary energy of each return
+    ok_b = ok_b & ~(both & closer_a)
+    ok_a = ok_a & ~(both & ~closer_a)
+    # corner: s1 = T, s3 on the shear line; G l_s + k l_t = s1 - T, G l_s - lambda l_t = s3c - s3
+    c3 = (cut * (1 + sin) - 2 * c * cos) / (1 - sin).clamp_min(1e-12)
+    l_t = (f_t - (c3 - s3)) / (k + lam)
+    l_s = (f_t - k * l_t) / g
+    ok_c = ~ok_a & ~ok_b & (l_s >= 0) & (l_t >= 0) & (f_t > 0)
+    # tension apex: s1 = s3 = T; [k lam; lam k] [l1; l3] = [s1 - T; s3 - T]
+    det = k * k - lam * lam
+    l1 = (k * f_t - lam * (s3 - cut)) / det
+    l3 = (k * (s3 - cut) - lam * f_t) / det
+
+    elastic = (f_s <= 0) & (f_t <= 0)
+    p1 = torch.where(ok_a, a1, torch.where(ok_b, b1, cut.expand_as(s1)))
+    p3 = torch.where(ok_a, a3, torch.where(ok_b, b3, torch.where(ok_c, c3, cut.expand_as(s3))))
+    dz = torch.where(ok_a, torch.zeros_like(s), torch.where(ok_b, drop, lam * torch.where(ok_c, l_t, l1 + l3)))
+    p1 = torch.where(elastic, s1, p1)
+    p3 = torch.where(elastic, s3, p3)
+    dz = torch.where(elastic, torch.zeros_like(dz), dz)
+
+    s_new = 0.5 * (p1 + p3)
+    t_new = 0.5 * (p1 - p3)
+    round_ = t > 1e-9 * (s.abs() + c + 1.0)  # principal directions defined
+    cos2 = torch.where(round_, d / t.clamp_min(1e-30), torch.ones_like(t))
+    sin2 = torch.where(round_, sxy / t.clamp_min(1e-30), torch.zeros_like(t))
+    z = torch.minimum(torch.maximum(szz - dz, p3), p1)
+    returned = torch.stack((s_new + t_new * cos2, s_new - t_new * cos2, t_new * sin2, z), dim=1)
     return torch.where(mat.plastic[:, None], returned, stress)
 
 

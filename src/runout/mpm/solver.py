@@ -127,14 +127,22 @@ def _coulomb(v, normal, mu):
     return torch.where(hit, vt * scale, v)
 
 
-def grid_update(m_grid, p_grid, grid: Grid, dt: float):
-    """Grid velocity with gravity, then walls (slip + Coulomb) and fixed-ground contact.
-    Returns the new velocity and the velocity before this step's forces (for FLIP)."""
+def grid_update(m_grid, p_grid, grid: Grid, dt: float, damping: float = 0.0):
+    """Grid velocity with gravity and local damping, then walls (slip + Coulomb) and
+    fixed-ground contact. Returns the new velocity and the velocity before this step's
+    forces (for FLIP).
+
+    Local (Cundall) damping takes `damping` times the magnitude of each component of the
+    unbalanced nodal force against that component of the nodal velocity, as the reference
+    MPM does: a frequency-independent loss like the hysteretic damping of soil."""
     has_mass = (m_grid > 0)[:, None]
     v_both = torch.where(has_mass, p_grid / m_grid.clamp_min(1e-30)[:, None], torch.zeros_like(p_grid))
     v_before = v_both[:, :2]  # transferred momentum only
-    v = v_before + v_both[:, 2:]  # plus the internal-force impulse
-    v[:, 1] -= GRAVITY * dt
+    dv = v_both[:, 2:].clone()  # internal-force impulse per unit mass
+    dv[:, 1] -= GRAVITY * dt
+    if damping > 0.0:
+        dv = dv - damping * dv.abs() * torch.sign(v_before)
+    v = v_before + dv
     v = torch.where(has_mass, v, torch.zeros_like(v))
     for c in grid.constraints:
         v[c.ids] = _coulomb(v[c.ids], c.normal, c.mu)
@@ -163,9 +171,9 @@ def g2p(pts: Points, v_grid, v_before, cache, grid: Grid, dt: float, flip: float
     pts.x = torch.minimum(torch.clamp(x, min=eps), pts.upper - eps)
 
 
-def substep(pts: Points, grid: Grid, dt: float, flip: float = 0.0) -> None:
+def substep(pts: Points, grid: Grid, dt: float, flip: float = 0.0, damping: float = 0.0) -> None:
     m_grid, p_grid, cache = p2g(pts, grid, dt)
-    v_grid, v_before = grid_update(m_grid, p_grid, grid, dt)
+    v_grid, v_before = grid_update(m_grid, p_grid, grid, dt, damping)
     g2p(pts, v_grid, v_before, cache, grid, dt, flip)
     grad_v = pts.C
     pts.stress = update_stress(pts.stress, grad_v, dt, pts.mat)
@@ -192,19 +200,35 @@ def p_wave_speed(youngs_pa: float, nu: float, density: float) -> float:
     return math.sqrt(m / density)
 
 
-def fixed_ground_contact(mass, ids, w, fx, size: int, full_node_mass: float, dx: float):
+def fixed_ground_contact(mass, ids, w, size: int, full_node_mass: float, shapes, offsets):
     """Contact constraint and stuck nodes of the fixed ground (computed once: it never moves).
 
-    A node is in contact when the fixed points give it at least 0.4 of a full node's mass;
-    its outward normal is minus the gradient of the fixed-mass field."""
+    A node is in contact when the fixed points give it at least 0.4 of a full node's mass.
+    Its outward normal is minus the gradient of the fixed-mass field after two 3 x 3 box
+    smoothings, which reaches three cells into the ground: a moving point's stencil reaches
+    1.5 cells, so every node a point above the ground can touch slides with Coulomb friction
+    along the surface (a normal from the raw field vanishes one cell down, and holding those
+    nodes still glued blocks to thick ground). Nodes deeper still are held still.
+    shapes [(nx, ny)] and offsets give each scene's block of the flat grid."""
+    import torch.nn.functional as F
+
     m_fix = torch.zeros(size, dtype=w.dtype, device=w.device)
-    n_fix = torch.zeros(size, 2, dtype=w.dtype, device=w.device)
-    dpos = node_offsets(dx, w)[None] - (fx * dx)[:, None, :]  # [P, 9, 2] node minus point, m
     m_fix.index_add_(0, ids.reshape(-1), (mass[:, None] * w).reshape(-1))
-    n_fix.index_add_(0, ids.reshape(-1), (mass[:, None, None] * w[..., None] * dpos).reshape(-1, 2))
+    normal = torch.zeros(size, 2, dtype=w.dtype, device=w.device)
+    for (nx, ny), off in zip(shapes, offsets):
+        block = m_fix[off:off + nx * ny].reshape(nx, ny).clone()
+        # the base and side walls are rigid too: count the nodes on and beyond them as full
+        # ground, so that a strip of fixed ground resting on the base has no downward normal
+        block[: PAD + 1, :] = torch.clamp(block[: PAD + 1, :], min=full_node_mass)
+        block[nx - PAD - 1:, :] = torch.clamp(block[nx - PAD - 1:, :], min=full_node_mass)
+        block[:, : PAD + 1] = torch.clamp(block[:, : PAD + 1], min=full_node_mass)
+        smooth = block[None, None]
+        for _ in range(2):
+            smooth = F.avg_pool2d(F.pad(smooth, (1, 1, 1, 1), mode="replicate"), 3, stride=1)
+        gx, gy = torch.gradient(smooth[0, 0])
+        normal[off:off + nx * ny] = -torch.stack((gx, gy), -1).reshape(-1, 2)
     contact = m_fix >= 0.4 * full_node_mass
-    norm = n_fix.norm(dim=1)
-    deep = contact & (norm < 0.05 * full_node_mass * dx)  # symmetric surroundings: inside the ground
+    norm = normal.norm(dim=1)
+    deep = contact & (norm < 1e-3 * full_node_mass)
     surface = torch.nonzero(contact & ~deep).squeeze(1)
-    normal = n_fix[surface] / norm[surface, None]
-    return surface, normal, torch.nonzero(deep).squeeze(1)
+    return surface, normal[surface] / norm[surface, None], torch.nonzero(deep).squeeze(1)
