@@ -20,6 +20,7 @@ from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
 
 GRAVITY = 9.81
+RELAX_CFL = 1.5  # relaxation step as a share of the scene CFL step on the wave speed alone
 RELAX_PERIODS = 3.0  # length of the geostatic relaxation in periods of the slowest mode
 
 
@@ -187,7 +188,7 @@ def relax_geostatic(batch: Batch, step=substep) -> int:
     has cracked before release, instead of opening (and being counted as moving) after it.
     A scene that cannot stand still fails on release. Per scene, the viscous damping critically
     damps the slowest vertical mode, 4 H / c_p in period for its tallest body H, and
-    RELAX_PERIODS such periods are run; a scene that has finished holds its stresses while
+    RELAX_PERIODS such periods are run at the wave-speed CFL step; a scene that has finished holds its stresses while
     others go on,
     so a batch relaxes each scene exactly as it would alone. Returns the substeps run."""
     pts, grid = batch.pts, batch.grid
@@ -200,15 +201,17 @@ def relax_geostatic(batch: Batch, step=substep) -> int:
     c_p.scatter_reduce_(0, pts.scene, torch.sqrt((pts.mat.lam + 2 * pts.mat.shear) * pts.volume / pts.mass),
                         reduce="amax")
     period = 4 * height / c_p  # s, per scene
-    steps = torch.ceil(RELAX_PERIODS * period / batch.dt).long()  # per scene
-    damping = torch.clamp(4 * math.pi * batch.dt / period, max=0.5)[pts.scene][:, None]
+    # points are held, so only the wave speed limits the step (no fall speed as in batch.dt)
+    dt = max(batch.dt, RELAX_CFL * batch.scenes[0].time.cfl * grid.dx / float(c_p.max()))
+    steps = torch.ceil(RELAX_PERIODS * period / dt).long()  # per scene
+    damping = torch.clamp(4 * math.pi * dt / period, max=0.5)[pts.scene][:, None]
     steps_p = steps[pts.scene]
     x0, v0 = pts.x.clone(), pts.v.clone()
     pts.v = torch.zeros_like(v0)
     total = int(steps.max())
     for k in range(total):
         stress = pts.stress
-        step(pts, grid, batch.dt, 0.0)
+        step(pts, grid, dt, 0.0)
         pts.stress = torch.where((k < steps_p)[:, None], pts.stress, stress)
         pts.x = x0
         pts.v = pts.v * (1 - damping)

@@ -14,14 +14,15 @@ s_u = c. The tension cut-off caps the principal stresses at T <= c / tan(phi), w
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
 
 @dataclass
 class MaterialArrays:
-    """Per-point constitutive constants (tensors [P])."""
+    """Per-point constitutive constants (tensors [P]); the return's derived constants are
+    made once here rather than at every substep."""
 
     lam: torch.Tensor  # Lame lambda, Pa
     shear: torch.Tensor  # shear modulus G, Pa
@@ -30,6 +31,19 @@ class MaterialArrays:
     cohesion: torch.Tensor  # Pa
     tension: torch.Tensor  # tension cut-off, Pa (already capped at c / tan phi)
     plastic: torch.Tensor  # bool: Mohr-Coulomb (True) or linear elastic (False)
+    c_cos: torch.Tensor = field(init=False)  # c cos(phi), Pa
+    k: torch.Tensor = field(init=False)  # constrained modulus lambda + 2G, Pa
+    ratio: torch.Tensor = field(init=False)  # lambda / (lambda + 2G)
+    corner3: torch.Tensor = field(init=False)  # s3 at the corner of the shear line and s1 = T, Pa
+    apex: torch.Tensor = field(init=False)  # [2, P] rows of the inverse of [[k, lam], [lam, k]] times det
+
+    def __post_init__(self) -> None:
+        self.c_cos = self.cohesion * self.cos_phi
+        self.k = self.lam + 2 * self.shear
+        self.ratio = self.lam / self.k
+        self.corner3 = (self.tension * (1 + self.sin_phi) - 2 * self.c_cos) / (1 - self.sin_phi).clamp_min(1e-12)
+        det = self.k * self.k - self.lam * self.lam
+        self.apex = torch.stack((self.k / det, self.lam / det))
 
 
 def jaumann_rotate(stress: torch.Tensor, spin: torch.Tensor) -> torch.Tensor:
@@ -71,45 +85,42 @@ def return_map(stress: torch.Tensor, mat: MaterialArrays) -> torch.Tensor:
     d = 0.5 * (sxx - syy)
     t = torch.sqrt(d * d + sxy * sxy)
     s1, s3 = s + t, s - t
-    sin, cos, c, cut = mat.sin_phi, mat.cos_phi, mat.cohesion, mat.tension
-    lam, g = mat.lam, mat.shear
-    k = lam + 2 * g  # constrained modulus
-    f_s = t + s * sin - c * cos
+    sin, cut, lam, g, k = mat.sin_phi, mat.tension, mat.lam, mat.shear, mat.k
+    t_a = mat.c_cos - s * sin  # yield radius at this s
+    f_s = t - t_a
     f_t = s1 - cut
 
     # shear alone: radius to the yield radius at constant s (needs a non-negative yield radius)
-    t_a = c * cos - s * sin
     ok_a = (f_s > 0) & (t_a >= 0) & (s + t_a <= cut)
     a1, a3 = s + t_a, s - t_a
     # tension alone: s1 -> T; s3 and szz follow through lambda
-    drop = f_t * (lam / k)
-    b1, b3 = cut.expand_as(s1), s3 - drop
-    ok_b = (f_t > 0) & (b3 <= cut) & (0.5 * (b1 - b3) + 0.5 * (b1 + b3) * sin - c * cos <= 0)
+    drop = f_t * mat.ratio
+    b3 = s3 - drop
+    ok_b = (f_t > 0) & (b3 <= cut) & (0.5 * (cut - b3) + 0.5 * (cut + b3) * sin <= mat.c_cos)
     both = ok_a & ok_b
-    closer_a = f_s * f_s / g <= f_t * f_t / k  # complementary energy of each return
+    closer_a = f_s * f_s * k <= f_t * f_t * g  # complementary energy of each return
     ok_b = ok_b & ~(both & closer_a)
     ok_a = ok_a & ~(both & ~closer_a)
     # corner: s1 = T, s3 on the shear line; G l_s + k l_t = s1 - T, G l_s - lambda l_t = s3c - s3
-    c3 = (cut * (1 + sin) - 2 * c * cos) / (1 - sin).clamp_min(1e-12)
+    c3 = mat.corner3
     l_t = (f_t - (c3 - s3)) / (k + lam)
-    l_s = (f_t - k * l_t) / g
+    l_s = f_t - k * l_t  # times G
     ok_c = ~ok_a & ~ok_b & (l_s >= 0) & (l_t >= 0) & (f_t > 0)
     # tension apex: s1 = s3 = T; [k lam; lam k] [l1; l3] = [s1 - T; s3 - T]
-    det = k * k - lam * lam
-    l1 = (k * f_t - lam * (s3 - cut)) / det
-    l3 = (k * (s3 - cut) - lam * f_t) / det
+    inv_k, inv_lam = mat.apex
+    l13 = (inv_k - inv_lam) * (f_t + s3 - cut)  # l1 + l3
 
     elastic = (f_s <= 0) & (f_t <= 0)
-    p1 = torch.where(ok_a, a1, torch.where(ok_b, b1, cut.expand_as(s1)))
+    p1 = torch.where(ok_a, a1, cut.expand_as(s1))
     p3 = torch.where(ok_a, a3, torch.where(ok_b, b3, torch.where(ok_c, c3, cut.expand_as(s3))))
-    dz = torch.where(ok_a, torch.zeros_like(s), torch.where(ok_b, drop, lam * torch.where(ok_c, l_t, l1 + l3)))
+    dz = torch.where(ok_a, torch.zeros_like(s), torch.where(ok_b, drop, lam * torch.where(ok_c, l_t, l13)))
     p1 = torch.where(elastic, s1, p1)
     p3 = torch.where(elastic, s3, p3)
     dz = torch.where(elastic, torch.zeros_like(dz), dz)
 
     s_new = 0.5 * (p1 + p3)
     t_new = 0.5 * (p1 - p3)
-    round_ = t > 1e-9 * (s.abs() + c + 1.0)  # principal directions defined
+    round_ = t > 1e-9 * (s.abs() + mat.cohesion + 1.0)  # principal directions defined
     cos2 = torch.where(round_, d / t.clamp_min(1e-30), torch.ones_like(t))
     sin2 = torch.where(round_, sxy / t.clamp_min(1e-30), torch.zeros_like(t))
     z = torch.minimum(torch.maximum(szz - dz, p3), p1)
