@@ -24,7 +24,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from runout.gns import FeatureSchema, NetworkConfig, Normalisation, Simulator, load_simulator
+from runout.gns.checkpoint import load_simulator
+from runout.gns.schema import FeatureSchema
+from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.inverse import load_inverse_spec
 from runout.inverse.forward import inverse_problem
 from runout.inverse.mpm_fd import MpmFiniteDifference

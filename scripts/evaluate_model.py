@@ -26,15 +26,12 @@ REPO = Path(__file__).resolve().parents[1]
 
 
 def test_split(simulator, data: Path) -> dict:
-    from runout.dataset import read_metadata, read_simulations
-    from runout.gns import rollout_trajectory
+    from runout.dataset import split_trajectories
     from runout.gns.evaluation import compare
-    from runout.trajectory import trajectory_from_features
+    from runout.gns.rollout import rollout_trajectory
 
-    meta = read_metadata(data)
     rows = []
-    for k, (positions, ptype, material) in enumerate(read_simulations(data / "test.npz")):
-        truth = trajectory_from_features(positions, ptype, material, meta.get("dt", 0.0375), meta["bounds"], f"test_{k}")
+    for k, truth in enumerate(split_trajectories(data, "test")):
         predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None)
         result = compare(predicted, truth)
         rows.append({"trajectory": k, "points": truth.n_points, "frames": truth.n_frames,
@@ -46,8 +43,8 @@ def test_split(simulator, data: Path) -> dict:
 
 def column(simulator, scene_path: Path, frames: int, out: Path) -> dict:
     from runout.cli.demo_commands import at_model_spacing
-    from runout.gns import rollout_trajectory, scene_at_rest
     from runout.gns.evaluation import normalised_runout
+    from runout.gns.rollout import rollout_trajectory, scene_at_rest
     from runout.mpm import simulate
     from runout.scene import load_scene
 
@@ -88,7 +85,7 @@ def main() -> None:
     p.add_argument("--column", type=Path, default=REPO / "examples" / "column_a1.toml")
     p.add_argument("--frames", type=int, default=240, help="Frames of the column runs.")
     args = p.parse_args()
-    from runout.gns import load_simulator
+    from runout.gns.checkpoint import load_simulator
 
     torch.set_num_threads(1)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -109,8 +109,8 @@ def _check(args: argparse.Namespace) -> None:
 
 def ensure_dataset(args: argparse.Namespace, budget: Budget) -> dict:
     """Generate (or finish) the dataset before the training deadline; its metadata."""
-    from runout.dataset import read_metadata
     from runout.generate import GenerateConfig, generate
+    from runout.simfiles import read_metadata
 
     config = GenerateConfig(args.stage, args.count, args.seed, args.batch, args.frames, args.cell_size)
     if _complete(args.data, config):
@@ -226,13 +226,12 @@ def export_model(args: argparse.Namespace, init: Path | None, record: dict) -> P
 
 def evaluate(model: Path, args: argparse.Namespace, meta: dict) -> dict:
     """Roll the model out on the first test trajectory; metrics and eval.png."""
-    from runout.dataset import read_simulations
-    from runout.gns import RolloutDiverged, load_simulator, rollout_trajectory
+    from runout.dataset import load_split_trajectory
+    from runout.gns.checkpoint import load_simulator
     from runout.gns.evaluation import compare
-    from runout.trajectory import trajectory_from_features
+    from runout.gns.rollout import RolloutDiverged, rollout_trajectory
 
-    positions, ptype, material = read_simulations(args.data / "test.npz")[0]
-    truth = trajectory_from_features(positions, ptype, material, meta.get("dt", 0.0375), meta["bounds"], "test_0")
+    truth = load_split_trajectory(args.data, "test", 0)
     frames = min(args.eval_frames or truth.n_frames, truth.n_frames)
     simulator = load_simulator(model, args.device)
     t0 = time.monotonic()

@@ -7,11 +7,9 @@ import pytest
 from typer.testing import CliRunner
 
 from runout.cli.app import app
-from runout.dataset import (
-    REQUIRED_METADATA, read_metadata, read_simulations, statistics, summarize, write_metadata,
-    write_simulations,
-)
+from runout.dataset import summarize
 from runout.errors import InputError
+from runout.simfiles import REQUIRED_METADATA, read_metadata, read_simulations, statistics, write_metadata, write_simulations
 
 
 def _sim(rng, frames=9, points=5, width=2):

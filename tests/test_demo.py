@@ -13,8 +13,8 @@ from typer.testing import CliRunner
 
 from runout.cli import app
 from runout.errors import InputError
-from runout.gns import NetworkConfig
 from runout.gns.checkpoint import read_checkpoint
+from runout.gns.simulator import NetworkConfig
 from runout.train import TrainConfig, train
 from test_gns_synthetic import write_dataset
 

@@ -15,7 +15,9 @@ from runout.evaluate.columns import CSV_COLUMNS
 from runout.evaluate.diagnostics import sigma_distance
 from runout.evaluate.inverse_study import spec_text
 from runout.evaluate.scenes import EXAMPLES
-from runout.gns import FeatureSchema, NetworkConfig, Normalisation, Simulator, save_checkpoint
+from runout.gns.checkpoint import save_checkpoint
+from runout.gns.schema import FeatureSchema
+from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.inverse import load_inverse_spec
 from runout.metrics import (
     absolute_percentage_error, coefficient_of_variation, displacement_error, normalised_runout, r_squared,

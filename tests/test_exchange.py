@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runout.dataset import read_simulations, write_simulations
 from runout.scene import Material
+from runout.simfiles import read_simulations, write_simulations
 from runout.trajectory import Trajectory, save_trajectory
 
 

@@ -12,10 +12,11 @@ import pytest
 from typer.testing import CliRunner
 
 from runout.cli.app import app
-from runout.dataset import read_metadata, read_simulations, summarize
+from runout.dataset import summarize
 from runout.errors import InputError
 from runout.generate import GenerateConfig, generate, merge, parse_shard, split_of
 from runout.scene import PARTICLE_TYPE_KINEMATIC, fill_points, load_scene
+from runout.simfiles import read_metadata, read_simulations
 from runout.trajectory import trajectory_for_scene
 
 CONFIG = GenerateConfig(stage="finetune", count=12, seed=3, batch=4, frames=8, cell_size=10.0)

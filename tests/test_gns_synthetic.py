@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runout.dataset import statistics, write_metadata, write_simulations
+from runout.simfiles import statistics, write_metadata, write_simulations
 
 FRAME_DT = 0.0375  # s
 BOUNDS = [[0.0, 60.0], [0.0, 30.0]]  # m

@@ -8,9 +8,10 @@ import torch
 import torch.multiprocessing as mp
 
 from runout.errors import InputError
-from runout.gns import NetworkConfig, load_simulator
+from runout.gns.checkpoint import load_simulator
 from runout.gns.evaluation import compare
 from runout.gns.rollout import rollout_trajectory
+from runout.gns.simulator import NetworkConfig
 from runout.train import TrainConfig, train
 from runout.trajectory import trajectory_from_features
 from test_gns_synthetic import BOUNDS, FRAME_DT, falling_block, write_dataset
@@ -94,7 +95,7 @@ def test_a_tiny_model_overfits_one_trajectory_and_rolls_it_out(tmp_path):
 
 
 def _only_material(data):
-    from runout.dataset import read_simulations
+    from runout.simfiles import read_simulations
 
     (_, _, material), = read_simulations(data / "train.npz")
     return (float(material[0, 0]),)

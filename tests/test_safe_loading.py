@@ -11,10 +11,10 @@ import pytest
 import torch
 
 from runout.cli import main
-from runout.dataset import read_simulations, write_simulations
 from runout.errors import InputError
 from runout.gns.checkpoint import load_simulator, read_checkpoint
 from runout.npz import SafeNpz
+from runout.simfiles import read_simulations, write_simulations
 
 REPO = Path(__file__).resolve().parents[1]
 MODEL = REPO / "models" / "slope.pt"

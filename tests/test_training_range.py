@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from runout.evaluate.mpm_cache import MpmCache, scene_key
-from runout.gns import scene_at_rest
 from runout.gns.checkpoint import load_simulator, read_checkpoint
+from runout.gns.rollout import scene_at_rest
 from runout.gns.training_range import bound_warnings, range_warnings
 from runout.scene import save_scene, scene_from_dict
 from test_cli_exits import TINY, run
@@ -43,7 +43,7 @@ def scene(phi=30.0, c=20.0, width=60.0, cell=4.0):
 
 def test_training_records_the_ranges_of_its_data(trained):
     data, ckpt = trained
-    from runout.dataset import read_simulations
+    from runout.simfiles import read_simulations
 
     ranges = read_checkpoint(ckpt)["data_ranges"]
     tan_phi = np.concatenate([m[t != 3, 0] for _, t, m in read_simulations(data / "train.npz")])

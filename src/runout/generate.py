@@ -27,13 +27,14 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import runout
-from runout.dataset import SPLITS, Moments, Simulation, write_metadata, write_simulations
+from runout.dataset import SPLITS
 from runout.errors import InputError, RunFailed
 from runout.families import BLOCK_SIDE, BLOCK_SPEED, DOMAIN_HEIGHT, STAGES, family_sequence, sample_for_index, vertex_ranges
+from runout.gns.schema import MATERIAL_FEATURE_NAMES, RADIUS_PER_SPACING
 from runout.scene import MAX_FRAMES, Scene, TimeSpec, save_scene
-from runout.trajectory import RADIUS_PER_SPACING, Trajectory
+from runout.simfiles import Moments, Simulation, write_metadata, write_simulations
+from runout.trajectory import Trajectory
 
-FEATURE_NAMES = ("tan_phi", "c_over_100kPa")
 MIN_COUNT = 10  # so that the valid and test splits (k mod 10 = 8, 9) are never empty
 MAX_COUNT = 1_000_000
 MAX_BATCH = 1024
@@ -259,7 +260,7 @@ def write_dataset(config: GenerateConfig, part_dirs: list[Path], out: Path) -> N
     families = family_sequence(stage, config.count)
     meta.update(
         {
-            "material_features": list(FEATURE_NAMES[: stage.feature_width]),
+            "material_features": list(MATERIAL_FEATURE_NAMES[: stage.feature_width]),
             "statistics_from": "train",
             "stage": stage.name,
             "seed": config.seed,

@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
+from runout import defaults
+from runout.defaults import PARTICLE_TYPE_KINEMATIC, PARTICLE_TYPE_SOIL
 from runout.errors import InputError
-
-PARTICLE_TYPE_KINEMATIC = 3  # stationary points (ground, foundation): positions prescribed
-PARTICLE_TYPE_SOIL = 6
+from runout.gns.schema import encode_material
 
 # Physical upper bounds of scene values (beyond them a run is meaningless or cannot finish).
 MAX_DOMAIN = 20_000.0  # m, width and height
@@ -36,10 +36,10 @@ class Domain:
 
     width: float
     height: float
-    cell_size: float = 4.0  # m, square background-grid cells
-    points_per_cell: int = 2  # per direction: 2 -> 4 points per cell
-    base_friction: float = 0.38  # Coulomb coefficient on the base and on fixed ground
-    wall_friction: float = 0.38  # on the side walls (and top); 0 = free slip
+    cell_size: float = defaults.CELL_SIZE  # m, square background-grid cells
+    points_per_cell: int = defaults.POINTS_PER_CELL  # per direction: 2 -> 4 points per cell
+    base_friction: float = defaults.BASE_FRICTION  # Coulomb coefficient on the base and on fixed ground
+    wall_friction: float = defaults.WALL_FRICTION  # on the side walls (and top); 0 = free slip
 
     @property
     def point_spacing(self) -> float:
@@ -48,9 +48,9 @@ class Domain:
 
 @dataclass(frozen=True)
 class TimeSpec:
-    frame_dt: float = 0.0375  # s between output frames
-    frames: int = 480
-    cfl: float = 0.4  # Courant number on dx / (c_p + v_max); the substep count follows
+    frame_dt: float = defaults.FRAME_DT  # s between output frames
+    frames: int = defaults.FRAMES
+    cfl: float = defaults.CFL  # Courant number on dx / (c_p + v_max); the substep count follows
     flip: float = 0.0  # FLIP share of the point-velocity update (the rest APIC); see docs/scene-format.md
     damping: float = 0.0  # local (Cundall) damping share of the unbalanced nodal force (the reference MPM used 0.05)
 
@@ -61,13 +61,13 @@ class Material:
 
     name: str
     model: str = "mohr-coulomb"  # or "elastic"
-    friction_angle: float = 30.0  # degrees
-    cohesion: float = 0.0  # kPa
-    youngs_modulus: float = 40.0  # MPa
-    poisson_ratio: float = 0.3
-    density: float = 1800.0  # kg/m^3
+    friction_angle: float = defaults.FRICTION_ANGLE  # degrees
+    cohesion: float = defaults.COHESION  # kPa
+    youngs_modulus: float = defaults.YOUNGS_MODULUS  # MPa
+    poisson_ratio: float = defaults.POISSON_RATIO
+    density: float = defaults.DENSITY  # kg/m^3
     k0: float | None = None  # lateral earth-pressure coefficient; default 1 - sin(phi)
-    tension_cutoff: float = 0.1  # kPa, capped at c / tan(phi)
+    tension_cutoff: float = defaults.TENSION_CUTOFF  # kPa, capped at c / tan(phi)
 
     @property
     def k0_value(self) -> float:
@@ -77,7 +77,7 @@ class Material:
 
     def features(self) -> list[float]:
         """GNS material features [tan(phi), c / 100 kPa] (paper Table 1, note a)."""
-        return [math.tan(math.radians(self.friction_angle)), self.cohesion / 100.0]
+        return encode_material(self.friction_angle, self.cohesion)
 
 
 @dataclass(frozen=True)
@@ -171,27 +171,27 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
 
     d = data["domain"]
     _check_keys(d, _DOMAIN_KEYS, "domain", source)
-    ppc = d.get("points_per_cell", 2)
+    ppc = d.get("points_per_cell", Domain.points_per_cell)
     if isinstance(ppc, bool) or not isinstance(ppc, int):
         raise InputError(f"{source}: domain.points_per_cell = {ppc!r} must be a whole number in [1, 6].")
     domain = Domain(
         width=_number(d, "width", "domain", source),
         height=_number(d, "height", "domain", source),
-        cell_size=_number(d, "cell_size", "domain", source, 4.0),
+        cell_size=_number(d, "cell_size", "domain", source, Domain.cell_size),
         points_per_cell=ppc,
-        base_friction=_number(d, "base_friction", "domain", source, 0.38),
-        wall_friction=_number(d, "wall_friction", "domain", source, 0.38),
+        base_friction=_number(d, "base_friction", "domain", source, Domain.base_friction),
+        wall_friction=_number(d, "wall_friction", "domain", source, Domain.wall_friction),
     )
 
     t = data.get("time", {})
     _check_keys(t, _TIME_KEYS, "time", source)
-    frames = t.get("frames", 480)
+    frames = t.get("frames", TimeSpec.frames)
     if isinstance(frames, bool) or not isinstance(frames, int):
         raise InputError(f"{source}: time.frames = {frames!r} must be a positive whole number.")
     time = TimeSpec(
-        frame_dt=_number(t, "frame_dt", "time", source, 0.0375),
+        frame_dt=_number(t, "frame_dt", "time", source, TimeSpec.frame_dt),
         frames=frames,
-        cfl=_number(t, "cfl", "time", source, 0.4),
+        cfl=_number(t, "cfl", "time", source, TimeSpec.cfl),
         flip=_number(t, "flip", "time", source, TimeSpec.flip),
         damping=_number(t, "damping", "time", source, TimeSpec.damping),
     )
@@ -203,20 +203,20 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     for name, m in mats_in.items():
         where = f"materials.{name}"
         _check_keys(m, _MATERIAL_KEYS, where, source)
-        model = m.get("model", "mohr-coulomb")
+        model = m.get("model", Material.model)
         if model not in ("mohr-coulomb", "elastic"):
             raise InputError(f"{source}: {where}.model = {model!r} must be 'mohr-coulomb' or 'elastic'.")
         k0 = m.get("k0")
         materials[name] = Material(
             name=name,
             model=model,
-            friction_angle=_number(m, "friction_angle", where, source, 30.0),
-            cohesion=_number(m, "cohesion", where, source, 0.0),
-            youngs_modulus=_number(m, "youngs_modulus", where, source, 40.0),
-            poisson_ratio=_number(m, "poisson_ratio", where, source, 0.3),
-            density=_number(m, "density", where, source, 1800.0),
+            friction_angle=_number(m, "friction_angle", where, source, Material.friction_angle),
+            cohesion=_number(m, "cohesion", where, source, Material.cohesion),
+            youngs_modulus=_number(m, "youngs_modulus", where, source, Material.youngs_modulus),
+            poisson_ratio=_number(m, "poisson_ratio", where, source, Material.poisson_ratio),
+            density=_number(m, "density", where, source, Material.density),
             k0=None if k0 is None else _number(m, "k0", where, source),
-            tension_cutoff=_number(m, "tension_cutoff", where, source, 0.1),
+            tension_cutoff=_number(m, "tension_cutoff", where, source, Material.tension_cutoff),
         )
 
     regions_in = data["regions"]

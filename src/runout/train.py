@@ -26,7 +26,8 @@ import torch.distributed as dist
 from torch.nn.parallel import DistributedDataParallel
 from tqdm.auto import tqdm
 
-from runout.dataset import read_metadata
+from runout.dataset import split_trajectories
+from runout.defaults import FRAME_DT
 from runout.errors import InputError, Interrupted
 from runout.gns.checkpoint import (
     check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint, widen_material_features,
@@ -34,9 +35,9 @@ from runout.gns.checkpoint import (
 from runout.gns.evaluation import compare
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations
-from runout.gns.training_range import measure as measure_ranges
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator, corrected_target, movable_mask, random_walk_noise
-from runout.trajectory import trajectory_from_features
+from runout.gns.training_range import measure as measure_ranges
+from runout.simfiles import read_metadata
 
 CHECKPOINT = "checkpoint.pt"
 BEST = "best.pt"
@@ -145,7 +146,7 @@ def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
                 log.losses(done, losses, lr, cfg.log_every)
                 losses = []
             if cfg.valid_every and done % cfg.valid_every == 0 and ctx.writer:
-                best = _validate(simulator, cfg, meta, log, done, best)
+                best = _validate(simulator, cfg, log, done, best)
             saved = done % cfg.save_every == 0 or done == cfg.steps
             if saved and ctx.writer:
                 _save(Path(cfg.out) / CHECKPOINT, simulator, optimizer, done, cfg, best)
@@ -234,7 +235,7 @@ def _build(cfg: TrainConfig, meta: dict, data: Simulations):
             widen_material_features(simulator, wanted.material_features, cfg.init)
         check_schema(simulator, wanted, cfg.init, data.path)
         return simulator, None, replace(cfg, lr_step_offset=int(base.get("step", 0)) + base.get("train", {}).get("lr_step_offset", 0))
-    stats = Normalisation.from_metadata(meta, cfg.noise_velocity_std * float(meta.get("dt", 0.0375)))
+    stats = Normalisation.from_metadata(meta, cfg.noise_velocity_std * float(meta.get("dt", FRAME_DT)))
     schema = data.schema()
     torch.manual_seed(cfg.seed)
     return Simulator(schema, stats, float(meta["default_connectivity_radius"]), cfg.network), None, cfg
@@ -248,17 +249,14 @@ def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: f
     )
 
 
-def _validate(simulator: Simulator, cfg: TrainConfig, meta: dict, log: "RunLog", step: int, best: float) -> float:
+def _validate(simulator: Simulator, cfg: TrainConfig, log: "RunLog", step: int, best: float) -> float:
     """Roll out the first validation trajectories; keep best.pt by mean position MSE."""
     path = Path(cfg.data) / "valid.npz"
     if not path.is_file():
         return best
-    from runout.dataset import read_simulations
-
     results = []
     simulator.eval()
-    for positions, ptype, material in read_simulations(path)[: cfg.valid_trajectories]:
-        truth = trajectory_from_features(positions, ptype, material, meta.get("dt", 0.0375), meta["bounds"])
+    for truth in split_trajectories(cfg.data, "valid", cfg.valid_trajectories):
         frames = cfg.valid_frames or truth.n_frames
         predicted = rollout_trajectory(simulator, truth, min(frames, truth.n_frames), stop_speed=None)
         results.append(compare(predicted, truth))

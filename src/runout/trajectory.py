@@ -10,18 +10,16 @@ a material table, and the domain bounds. On disk a trajectory is the public GNS 
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
-from runout.scene import PARTICLE_TYPE_KINEMATIC, Material, Scene
-
-# Default GNS connectivity radius as a multiple of the point spacing: 2.3 x 2 m = 4.6 m gives
-# ~16 neighbours per point at 4 points per 4 m cell.
-RADIUS_PER_SPACING = 2.3
+from runout.gns.schema import MATERIAL_FEATURE_NAMES, decode_material
+from runout.scene import Material, Scene
+from runout.simfiles import exchange_material, read_simulations, statistics
 
 
 @dataclass
@@ -58,13 +56,6 @@ class Trajectory:
         table = np.array([m.features()[:width] for m in self.materials], dtype=np.float32)
         return table[self.material_id]
 
-    def frames(self, stop: int) -> "Trajectory":
-        """The first `stop` frames."""
-        return Trajectory(
-            self.positions[:stop], self.particle_type, self.material_id, self.materials,
-            self.frame_dt, self.bounds, self.name, dict(self.info),
-        )
-
 
 def trajectory_from_features(
     positions: np.ndarray,
@@ -83,8 +74,7 @@ def trajectory_from_features(
     rows, material_id = np.unique(features, axis=0, return_inverse=True)
     materials = []
     for k, row in enumerate(rows):
-        phi = math.degrees(math.atan(float(row[0])))
-        c = float(row[1]) * 100.0 if len(row) > 1 else 0.0
+        phi, c = decode_material(row)
         materials.append(Material(name=f"material_{k}", friction_angle=phi, cohesion=c))
     return Trajectory(
         positions=np.asarray(positions, dtype=np.float32),
@@ -100,8 +90,6 @@ def trajectory_from_features(
 def gns_tuple(traj: Trajectory, feature_width: int = 2) -> np.ndarray:
     """The (positions, particle_type, material) tuple as the 1-D object array the GNS reads;
     one material feature is stored as (N,), two as (N, 2)."""
-    from runout.dataset import exchange_material  # dataset builds on trajectory, not the reverse
-
     out = np.empty(3, dtype=object)
     out[0] = traj.positions.astype(np.float32)
     out[1] = traj.particle_type.astype(np.int64)
@@ -111,20 +99,18 @@ def gns_tuple(traj: Trajectory, feature_width: int = 2) -> np.ndarray:
 
 def save_trajectory(traj: Trajectory, out_dir: str | Path, feature_width: int = 2) -> Path:
     """Write DIR/trajectory.npz (one simulation, GNS dict layout) and DIR/metadata.json."""
-    from runout.dataset import statistics  # dataset builds on trajectory, not the reverse
-
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     path = out_dir / "trajectory.npz"
     tmp = out_dir / "trajectory.tmp.npz"
     np.savez_compressed(tmp, simulation_0=gns_tuple(traj, feature_width))
     tmp.replace(path)
-    meta = statistics([traj])
+    meta = statistics([(traj.positions,)], bounds=traj.bounds, dt=traj.frame_dt)
     meta.update(
         {
             "name": traj.name,
             "materials": [_material_dict(m) for m in traj.materials],
-            "material_features": ["tan_phi", "c_over_100kPa"][:feature_width],
+            "material_features": list(MATERIAL_FEATURE_NAMES[:feature_width]),
             "info": traj.info,
         }
     )
@@ -149,14 +135,12 @@ def load_trajectory(path: str | Path) -> Trajectory:
     if not meta_path.is_file():
         raise InputError(f"{meta_path}: missing; a trajectory needs its metadata.json beside it.")
     meta = json.loads(meta_path.read_text())
-    from runout.dataset import read_simulations
-
     sims = read_simulations(npz)
     if len(sims) != 1:
         raise InputError(f"{npz}: holds {len(sims)} simulations; a trajectory file holds exactly one.")
     positions, ptype, feats = sims[0]
     traj = trajectory_from_features(
-        positions, ptype, feats, meta.get("dt", 0.0375), meta["bounds"], meta.get("name", npz.stem)
+        positions, ptype, feats, meta.get("dt", FRAME_DT), meta["bounds"], meta.get("name", npz.stem)
     )
     if "materials" in meta:
         traj = _attach_material_table(traj, feats, meta["materials"])

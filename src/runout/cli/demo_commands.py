@@ -41,7 +41,7 @@ def demo(
 ) -> None:
     """Forward runout of the four-layer slope and inverse back-calculation of one strength on a
     small dam, with the shipped GNS; prints where the pictures are (a few minutes on a CPU)."""
-    from runout.gns import load_simulator
+    from runout.gns.checkpoint import load_simulator
     from runout.outputs import prepare_folder
 
     for name in (SLOPE, DAM):
@@ -61,7 +61,7 @@ def demo(
 
 def at_model_spacing(scene, simulator):
     """The scene with cells sized so that its points sit at the model's training spacing."""
-    from runout.trajectory import RADIUS_PER_SPACING
+    from runout.gns.schema import RADIUS_PER_SPACING
 
     spacing = simulator.radius / RADIUS_PER_SPACING  # m
     cell = round(spacing * scene.domain.points_per_cell, 6)
@@ -70,8 +70,8 @@ def at_model_spacing(scene, simulator):
 
 def _forward(simulator, scene_path: Path, out: Path, quick: bool) -> tuple[Path, Path]:
     """GNS runout of a scene from rest: animation.gif and final.png."""
-    from runout.gns import rollout_trajectory, scene_at_rest
     from runout.gns.evaluation import runout_extent
+    from runout.gns.rollout import rollout_trajectory, scene_at_rest
     from runout.plots import save_animation, save_frame
     from runout.scene import load_scene
 

@@ -89,8 +89,9 @@ def rollout(
     force: bool = typer.Option(False, "--force", help="Replace another command's results in --out (removing what this run does not rewrite)."),
 ) -> None:
     """Roll the GNS out from 6 frames until FRAMES or until the flow stops."""
-    from runout.gns import load_simulator, rollout_trajectory
+    from runout.gns.checkpoint import load_simulator
     from runout.gns.figures import animation_name
+    from runout.gns.rollout import rollout_trajectory
     from runout.gns.training_range import range_warnings
     from runout.outputs import check_folder, claim
 
@@ -120,7 +121,7 @@ def rollout(
 
 def _initial_state(source: Path, split: str, index: int, simulator):
     """(trajectory whose first frames start the rollout, ground truth or None)."""
-    from runout.gns import scene_at_rest
+    from runout.gns.rollout import scene_at_rest
     from runout.scene import load_scene
     from runout.trajectory import load_trajectory
 
@@ -140,20 +141,14 @@ def _initial_state(source: Path, split: str, index: int, simulator):
 
 
 def _dataset_trajectory(folder: Path, split: str, index: int, simulator):
-    from runout.dataset import read_metadata, read_simulations
+    from runout.dataset import load_split_trajectory
     from runout.gns.checkpoint import check_schema
     from runout.gns.schema import material_names_for_width
-    from runout.trajectory import trajectory_from_features
 
-    sims = read_simulations(folder / f"{split}.npz")
-    if not 0 <= index < len(sims):
-        raise InputError(f"{folder / (split + '.npz')}: --index = {index} is outside [0, {len(sims) - 1}].")
-    positions, ptype, material = sims[index]
-    width = 0 if material is None else material.shape[1]
-    data_schema = simulator.schema.with_material_features(material_names_for_width(width))
+    truth = load_split_trajectory(folder, split, index)
+    data_schema = simulator.schema.with_material_features(material_names_for_width(truth.info.pop("material_width")))
     check_schema(simulator, data_schema, "the model", folder / f"{split}.npz")
-    meta = read_metadata(folder)
-    return trajectory_from_features(positions, ptype, material, meta.get("dt", 0.0375), meta["bounds"], f"{split}_{index}")
+    return truth
 
 
 def _warn_ignored_cohesion(scene, simulator) -> None:

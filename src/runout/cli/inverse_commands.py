@@ -28,7 +28,7 @@ def invert(
     import torch
 
     from runout.errors import InputError, Interrupted, RunFailed
-    from runout.gns import RolloutDiverged
+    from runout.gns.rollout import RolloutDiverged
     from runout.inverse import invert as run_inversion, summary_lines
 
     if device.startswith("cuda") and not torch.cuda.is_available():

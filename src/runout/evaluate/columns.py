@@ -29,7 +29,8 @@ from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
 from runout.evaluate.mpm_cache import MpmCache
 from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_scene
-from runout.gns import load_simulator, rollout_trajectory
+from runout.gns.checkpoint import load_simulator
+from runout.gns.rollout import rollout_trajectory
 from runout.metrics import absolute_percentage_error, coefficient_of_variation, normalised_runout, r_squared, runout_front
 from runout.trajectory import Trajectory, load_trajectory, save_trajectory
 

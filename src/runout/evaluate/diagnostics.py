@@ -22,7 +22,8 @@ from runout.evaluate.diagnostics_figures import draw_diagnostics
 from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
 from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_scene
-from runout.gns import load_simulator, rollout_trajectory
+from runout.gns.checkpoint import load_simulator
+from runout.gns.rollout import rollout_trajectory
 from runout.metrics import velocities
 from runout.trajectory import Trajectory, save_trajectory
 

@@ -26,18 +26,19 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from runout.dataset import iter_simulations, read_metadata, write_simulations
+from runout.dataset import split_trajectories
 from runout.errors import InputError
 from runout.evaluate.model_card import model_card
 from runout.evaluate.sensitivity_figures import draw_loss_histories, draw_rollout_mse
-from runout.gns import load_simulator, rollout_trajectory
+from runout.gns.checkpoint import load_simulator
+from runout.gns.rollout import rollout_trajectory
+from runout.gns.schema import HISTORY
 from runout.metrics import position_mse
+from runout.simfiles import iter_simulations, write_simulations
 from runout.train import CHECKPOINT, TrainConfig, train
-from runout.trajectory import trajectory_from_features
 
 PAPER_SIZES = (10, 50, 100, 250, 500, 750, 1000)
 BUDGETS = ("steps", "epochs")
-HISTORY = 6  # input frames of a GNS window
 
 
 @dataclass
@@ -65,8 +66,7 @@ def run_sensitivity(cfg: SensitivityConfig, out: Path) -> dict:
     """Run the study; returns the summary written to OUT/sensitivity/summary.json."""
     cfg.check()
     folder = Path(out) / "sensitivity"
-    meta = read_metadata(cfg.data)
-    held_out = held_out_trajectories(cfg, meta)
+    held_out = list(split_trajectories(cfg.data, cfg.split, cfg.held_out))
     rows, runs = [], {}
     for size, budget in itertools.product(cfg.sizes, BUDGETS):
         subset = write_subset(cfg.data, folder / f"data_{size}", size)
@@ -81,12 +81,6 @@ def run_sensitivity(cfg: SensitivityConfig, out: Path) -> dict:
     draw_loss_histories(runs, folder / "loss_history.png")
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
-
-
-def held_out_trajectories(cfg: SensitivityConfig, meta: dict) -> list:
-    sims = itertools.islice(iter_simulations(Path(cfg.data) / f"{cfg.split}.npz"), cfg.held_out)
-    return [trajectory_from_features(p, t, m, meta.get("dt", 0.0375), meta["bounds"], f"{cfg.split}_{k}")
-            for k, (p, t, m) in enumerate(sims)]
 
 
 def write_subset(data: Path, folder: Path, size: int) -> Path:

@@ -23,7 +23,8 @@ from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
 from runout.evaluate.scenes import EXAMPLES, example_scene, scaled
 from runout.evaluate.slope_figures import draw_displacement_error, draw_fields
-from runout.gns import load_simulator, rollout_trajectory
+from runout.gns.checkpoint import load_simulator
+from runout.gns.rollout import rollout_trajectory
 from runout.metrics import absolute_percentage_error, displacement_error, side_runouts
 from runout.trajectory import Trajectory, save_trajectory
 

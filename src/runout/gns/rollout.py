@@ -14,6 +14,7 @@ from torch.utils.checkpoint import checkpoint as recompute_in_backward
 from tqdm.auto import tqdm
 
 from runout.errors import RunFailed
+from runout.gns.schema import HISTORY
 from runout.gns.simulator import Simulator, movable_mask
 from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
@@ -117,7 +118,7 @@ def rollout_trajectory(
     )
 
 
-def scene_at_rest(scene: Scene, history: int = 6) -> Trajectory:
+def scene_at_rest(scene: Scene, history: int = HISTORY) -> Trajectory:
     """`history` identical frames of the scene's filled points: a start from rest."""
     points = fill_points(scene)
     positions = np.repeat(points.position[None].astype(np.float32), history, axis=0)

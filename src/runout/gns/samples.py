@@ -13,9 +13,9 @@ from pathlib import Path
 
 import torch
 
-from runout.dataset import read_simulations
 from runout.errors import InputError
-from runout.gns.schema import FeatureSchema, material_names_for_width
+from runout.gns.schema import HISTORY, FeatureSchema, material_names_for_width
+from runout.simfiles import read_simulations
 
 
 @dataclass
@@ -30,7 +30,7 @@ class Batch:
 class Simulations:
     """The simulations of one split file on `device`."""
 
-    def __init__(self, path: str | Path, device: torch.device, history: int = 6, material_names=None):
+    def __init__(self, path: str | Path, device: torch.device, history: int = HISTORY, material_names=None):
         sims = read_simulations(path)
         widths = {0 if m is None else m.shape[1] for _, _, m in sims}
         if len(widths) != 1:

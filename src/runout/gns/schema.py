@@ -11,16 +11,25 @@ with one more material input by appending zero columns to the encoder's first la
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, fields
 
-MATERIAL_FEATURE_NAMES = ("tan_phi", "c_over_100kPa")  # runout.scene.Material.features() order
+import numpy as np
+import torch
+
+MATERIAL_FEATURE_NAMES = ("tan_phi", "c_over_100kPa")  # the order of encode_material
+COHESION_SCALE = 100.0  # kPa: the second material feature is c / COHESION_SCALE
+HISTORY = 6  # positions per input window -> 5 velocities
+# Default connectivity radius as a multiple of the point spacing: 2.3 x 2 m = 4.6 m gives
+# ~16 neighbours per point at 4 points per 4 m cell.
+RADIUS_PER_SPACING = 2.3
 # Allowed [lowest, highest] of the numeric fields a checkpoint stores.
 SCHEMA_LIMITS = {"history": (2, 20), "dim": (2, 2), "wall_clip": (0.0, 100.0), "particle_types": (1, 64), "type_embedding": (1, 256)}
 
 
 @dataclass(frozen=True)
 class FeatureSchema:
-    history: int = 6  # positions per input window -> history - 1 velocities
+    history: int = HISTORY  # positions per input window -> history - 1 velocities
     dim: int = 2
     wall_clip: float = 1.0  # wall distances / R are clipped to [-wall_clip, wall_clip]
     particle_types: int = 9
@@ -40,13 +49,6 @@ class FeatureSchema:
     def edge_width(self) -> int:
         """Relative displacement / R (dim columns) and its length."""
         return self.dim + 1
-
-    def node_feature_names(self) -> list[str]:
-        axes = "xyz"[: self.dim]
-        vel = [f"velocity[t-{self.history - 2 - k}].{a}" for k in range(self.history - 1) for a in axes]
-        walls = [f"wall_{side}.{a}" for side in ("lo", "hi") for a in axes]
-        types = [f"type_embedding[{k}]" for k in range(self.type_embedding)]
-        return vel + walls + types + list(self.material_features)
 
     def with_material_features(self, names: tuple[str, ...]) -> "FeatureSchema":
         return FeatureSchema(**{**asdict(self), "material_features": tuple(names)})
@@ -98,3 +100,33 @@ def _show(value) -> str:
 def material_names_for_width(width: int) -> tuple[str, ...]:
     """Names of the first `width` material features ([tan phi], [tan phi, c / 100 kPa])."""
     return MATERIAL_FEATURE_NAMES[:width]
+
+
+# ----------------------------------------------------------------------------- material codec
+# A material enters the GNS as [tan phi, c / 100 kPa] (paper Table 1, note a); a base model
+# reads only the first column.
+
+
+def encode_material(friction_angle: float, cohesion: float) -> list[float]:
+    """[tan phi, c / 100 kPa] of one material (phi in degrees, c in kPa)."""
+    return [math.tan(math.radians(friction_angle)), cohesion / COHESION_SCALE]
+
+
+def decode_material(row) -> tuple[float, float]:
+    """(phi in degrees, c in kPa) of one feature row [tan phi] or [tan phi, c / 100 kPa];
+    c is 0 when the row has one column."""
+    phi = math.degrees(math.atan(float(row[0])))
+    c = float(row[1]) * COHESION_SCALE if len(row) > 1 else 0.0
+    return phi, c
+
+
+def decode_materials(features: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """(phi [N] in degrees, c [N] in kPa or None for one column) of feature rows [N, k]."""
+    features = np.asarray(features)
+    phi = np.degrees(np.arctan(features[:, 0]))
+    return phi, features[:, 1] * COHESION_SCALE if features.shape[1] > 1 else None
+
+
+def encode_materials_torch(friction_angle: torch.Tensor, cohesion: torch.Tensor) -> torch.Tensor:
+    """[..., 2] features [tan phi, c / 100 kPa] from phi (degrees) and c (kPa); differentiable."""
+    return torch.stack([torch.tan(torch.deg2rad(friction_angle)), cohesion / COHESION_SCALE], dim=-1)

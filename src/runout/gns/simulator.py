@@ -13,10 +13,10 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
+from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.gns.graph import radius_graph
 from runout.gns.network import EncodeProcessDecode
 from runout.gns.schema import FeatureSchema
-from runout.scene import PARTICLE_TYPE_KINEMATIC
 
 
 @dataclass(frozen=True)

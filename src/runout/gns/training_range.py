@@ -20,8 +20,9 @@ import math
 
 import numpy as np
 
-from runout.scene import PARTICLE_TYPE_KINEMATIC
-from runout.trajectory import RADIUS_PER_SPACING, Trajectory
+from runout.defaults import PARTICLE_TYPE_KINEMATIC
+from runout.gns.schema import RADIUS_PER_SPACING, decode_materials
+from runout.trajectory import Trajectory
 
 SPACING_TOLERANCE = 0.1  # relative difference of point spacing that is still "the same graph"
 
@@ -33,9 +34,10 @@ def measure(materials, particle_types, meta: dict, radius: float, source: str) -
         soil = np.asarray(material)[np.asarray(ptype) != PARTICLE_TYPE_KINEMATIC]
         if len(soil) == 0 or soil.shape[1] == 0:
             continue
-        phi.append(np.degrees(np.arctan(soil[:, 0])))
-        if soil.shape[1] > 1:
-            c.append(soil[:, 1] * 100.0)
+        soil_phi, soil_c = decode_materials(soil)
+        phi.append(soil_phi)
+        if soil_c is not None:
+            c.append(soil_c)
         counts.append(len(np.unique(soil, axis=0)))
     bounds = np.asarray(meta["bounds"], dtype=float)
     spacing = float(meta["cell_size"]) / 2 if "cell_size" in meta else radius / RADIUS_PER_SPACING

@@ -8,7 +8,9 @@ import numpy as np
 import torch
 
 from runout.errors import InputError
-from runout.gns import Simulator, load_simulator, rollout
+from runout.gns.checkpoint import load_simulator
+from runout.gns.rollout import rollout
+from runout.gns.simulator import Simulator
 from runout.inverse.observation import Observation
 from runout.inverse.problem import ForwardModel, InverseProblem, material_table
 from runout.inverse.spec import INPUT_FRAMES, InverseSpec

@@ -11,9 +11,10 @@ from pathlib import Path
 
 import numpy as np
 
+from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
 from runout.inverse.spec import INPUT_FRAMES, InverseSpec, LossSpec
-from runout.scene import PARTICLE_TYPE_KINEMATIC, fill_points
+from runout.scene import fill_points
 from runout.trajectory import Trajectory, load_trajectory
 
 

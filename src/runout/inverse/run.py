@@ -12,13 +12,13 @@ from runout.errors import InputError
 from runout.inverse.figures import (
     check_iterations, default_iterations, draw_deposits, draw_loss, draw_parameters, draw_starts, pick_iterations,
 )
+from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.inverse.history import RunInfo
 from runout.inverse.memory import PeakMemory
 from runout.inverse.observation import Observation, load_observation
 from runout.inverse.optimise import Log, StartResult, run_starts, spread
 from runout.inverse.spec import InverseSpec, load_inverse_spec
 from runout.outputs import check_folder, claim
-from runout.scene import PARTICLE_TYPE_KINEMATIC
 
 ENGINES = ("gns", "mpm-fd")
 MAX_STARTS = 100
@@ -92,7 +92,7 @@ def _evaluator(spec, observation, engine, model, device, fd_step, checkpoint, pr
 
         check_budget([spec.scene] * (2 * len(spec.free) + 1), observation.frames[-1] + 1, device, str(spec.source))
         return MpmFiniteDifference(spec, observation, fd_step, device, progress), ""
-    from runout.gns import scene_at_rest
+    from runout.gns.rollout import scene_at_rest
     from runout.gns.training_range import bound_warnings, range_warnings
     from runout.inverse.forward import inverse_problem, load_model
 

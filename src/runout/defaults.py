@@ -1,0 +1,30 @@
+"""Physical and file-format defaults shared by scenes, datasets and the GNS: one place each.
+
+Scene files that leave a value out get it from here (runout.scene.files reads them), and
+the dataclasses in runout.scene.model use the same numbers.
+"""
+
+from __future__ import annotations
+
+GRAVITY = 9.81  # m/s^2, downwards (-y); the MPM's runout.mpm.geostatic.GRAVITY equals it (tested)
+
+# Particle types of the GNS format (geoelements/gns).
+PARTICLE_TYPE_KINEMATIC = 3  # stationary points (ground, foundation): positions prescribed
+PARTICLE_TYPE_SOIL = 6
+
+FRAME_DT = 0.0375  # s between output frames (375 steps of 1e-4 s in the reference MPM)
+FRAMES = 480
+CFL = 0.4  # Courant number on dx / (c_p + v_max)
+
+CELL_SIZE = 4.0  # m, square background-grid cells
+POINTS_PER_CELL = 2  # per direction: 2 -> 4 points per cell
+BASE_FRICTION = 0.38  # Coulomb coefficient on the base and on fixed ground
+WALL_FRICTION = 0.38  # on the side walls (and top); 0 = free slip
+
+# Mohr-Coulomb soil.
+FRICTION_ANGLE = 30.0  # degrees
+COHESION = 0.0  # kPa
+YOUNGS_MODULUS = 40.0  # MPa
+POISSON_RATIO = 0.3
+DENSITY = 1800.0  # kg/m^3
+TENSION_CUTOFF = 0.1  # kPa, capped at c / tan(phi)
