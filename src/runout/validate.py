@@ -312,6 +312,8 @@ def write_report(results: list[CaseResult], path: Path, command: str, figures: P
         "",
         f"Made by `{command}` ({met} of {len(results)} checks met). Every number is measured by that",
         "command with the solver's defaults; the bands are the references of src/runout/validate.py.",
+        "Why the solver makes the choices it makes, and what is still open: docs/scene-format.md",
+        "(\"The solver's choices, and why\").",
         "",
         "| case | quantity | measured | allowed | reference | met | cell (m) | figure |",
         "|---|---|---|---|---|---|---|---|",
@@ -325,4 +327,19 @@ def write_report(results: list[CaseResult], path: Path, command: str, figures: P
             rel = fig
         lines.append(f"| {r.case} | {r.quantity} | {r.measured:.3f} | [{r.low:.3g}, {hi}] | {r.reference} | "
                      f"{'yes' if r.met else '**no**'} | {r.extra.get('cell_m', '')} | [png]({rel}) |")
+    by_cell = {r.extra.get("cell_m"): r.extra["runout_base_m"] for r in results
+               if r.case.startswith("convergence_") and "runout_base_m" in r.extra}
+    if 4.0 in by_cell and 8.0 in by_cell:
+        r4, r8 = by_cell[4.0], by_cell[8.0]
+        lines += ["", f"Resolution: the convergence column's runout L_f - L_0 is {r4:.1f} m at 4 m cells and "
+                  f"{r8:.1f} m at 8 m cells ({(r8 - r4) / r4 * 100:+.1f} %), the change a model trained at 8 m "
+                  "inherits."]
     path.write_text("\n".join(lines) + "\n")
+
+
+def report_from_json(results_json: Path, path: Path, command: str) -> None:
+    """Rewrite the Markdown report from a results.json (after editing the report's layout)."""
+    rows = json.loads(Path(results_json).read_text())
+    results = [CaseResult(d["case"], d["quantity"], d["measured"], d["low"], d["high"], d["reference"],
+                          d["figure"], d["extra"]) for d in rows]
+    write_report(results, path, command, Path(results_json).parent)

@@ -200,6 +200,9 @@ def p_wave_speed(youngs_pa: float, nu: float, density: float) -> float:
     return math.sqrt(m / density)
 
 
+CONTACT_SHARE = 0.4  # a node is in contact with fixed ground from this share of a full node's fixed mass
+
+
 def fixed_ground_contact(mass, ids, w, size: int, full_node_mass: float, shapes, offsets):
     """Contact constraint and stuck nodes of the fixed ground (computed once: it never moves).
 
@@ -227,7 +230,7 @@ def fixed_ground_contact(mass, ids, w, size: int, full_node_mass: float, shapes,
             smooth = F.avg_pool2d(F.pad(smooth, (1, 1, 1, 1), mode="replicate"), 3, stride=1)
         gx, gy = torch.gradient(smooth[0, 0])
         normal[off:off + nx * ny] = -torch.stack((gx, gy), -1).reshape(-1, 2)
-    contact = m_fix >= 0.4 * full_node_mass
+    contact = m_fix >= CONTACT_SHARE * full_node_mass
     norm = normal.norm(dim=1)
     deep = contact & (norm < 1e-3 * full_node_mass)
     surface = torch.nonzero(contact & ~deep).squeeze(1)
