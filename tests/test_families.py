@@ -7,13 +7,14 @@ import pytest
 from typer.testing import CliRunner
 
 from runout.cli.app import app
+from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.families import (
     BLOCK_COUNT, BLOCK_SIDE, BLOCK_SPEED, DOMAIN_HEIGHT, GROUND_TOP, STAGES, family_sequence, sample,
     sample_for_index, vertex_ranges,
 )
 from runout.scene import (
-    PARTICLE_TYPE_KINEMATIC, edges_cross, fill_points, points_in_polygon, polygon_area,
-    polygon_self_intersects, polygons_overlap, validate_scene,
+    edges_cross, fill_points, points_in_polygon, polygon_area, polygon_self_intersects, polygons_overlap,
+    validate_scene,
 )
 
 N_SAMPLES = 200

@@ -13,9 +13,10 @@ from typer.testing import CliRunner
 
 from runout.cli.app import app
 from runout.dataset import summarize
+from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
 from runout.generate import GenerateConfig, generate, merge, parse_shard, split_of
-from runout.scene import PARTICLE_TYPE_KINEMATIC, fill_points, load_scene
+from runout.scene import fill_points, load_scene
 from runout.simfiles import read_metadata, read_simulations
 from runout.trajectory import trajectory_for_scene
 
