@@ -27,8 +27,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 def test_split(simulator, data: Path) -> dict:
     from runout.dataset import split_trajectories
-    from runout.gns.evaluation import compare
     from runout.gns.rollout import rollout_trajectory
+    from runout.metrics import compare
 
     rows = []
     for k, truth in enumerate(split_trajectories(data, "test")):
@@ -43,8 +43,8 @@ def test_split(simulator, data: Path) -> dict:
 
 def column(simulator, scene_path: Path, frames: int, out: Path) -> dict:
     from runout.cli.demo_commands import at_model_spacing
-    from runout.gns.evaluation import normalised_runout
     from runout.gns.rollout import rollout_trajectory, scene_at_rest
+    from runout.metrics import normalised_extent
     from runout.mpm import simulate
     from runout.scene import load_scene
 
@@ -54,7 +54,7 @@ def column(simulator, scene_path: Path, frames: int, out: Path) -> dict:
     truth = simulate([scene], device="cpu", progress=False)[0]
     mpm_s = time.perf_counter() - t0
     predicted = rollout_trajectory(simulator, scene_at_rest(scene, simulator.schema.history), frames, stop_speed=None)
-    mpm_ln, gns_ln = normalised_runout(truth), normalised_runout(predicted)
+    mpm_ln, gns_ln = normalised_extent(truth), normalised_extent(predicted)
     _draw(truth, predicted, out / "column.png")
     return {"scene": scene_path.name, "cell_size_m": scene.domain.cell_size, "points": truth.n_points, "frames": frames,
             "mpm_normalised_runout": mpm_ln, "gns_normalised_runout": gns_ln,

@@ -228,8 +228,8 @@ def evaluate(model: Path, args: argparse.Namespace, meta: dict) -> dict:
     """Roll the model out on the first test trajectory; metrics and eval.png."""
     from runout.dataset import load_split_trajectory
     from runout.gns.checkpoint import load_simulator
-    from runout.gns.evaluation import compare
     from runout.gns.rollout import RolloutDiverged, rollout_trajectory
+    from runout.metrics import compare
 
     truth = load_split_trajectory(args.data, "test", 0)
     frames = min(args.eval_frames or truth.n_frames, truth.n_frames)

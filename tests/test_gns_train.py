@@ -9,9 +9,9 @@ import torch.multiprocessing as mp
 
 from runout.errors import InputError
 from runout.gns.checkpoint import load_simulator
-from runout.gns.evaluation import compare
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.simulator import NetworkConfig
+from runout.metrics import compare
 from runout.train import TrainConfig, train
 from runout.trajectory import trajectory_from_features
 from test_gns_synthetic import BOUNDS, FRAME_DT, falling_block, write_dataset

@@ -1,21 +1,20 @@
-"""Runout metrics shared by every study: runout fronts, normalised runout, errors, R².
+"""Runout metrics, one definition each, for every study and command.
 
 Lengths in metres, velocities in m/s, errors in percent where named so. Both engines give a
-Trajectory, so none of these care which engine made it. The position MSE per frame is the
-GNS engineer's (runout.gns.evaluation), re-exported here so studies import one module.
+Trajectory, so none of these care which engine made it. Two runout measures, named apart:
+
+    runout_front(traj)    largest x of the soil (a flow moving right, e.g. a column)
+    runout_extent(traj)   horizontal extent of the soil, max x - min x
+
+and one normalisation of either, L^n = (L_f - L_0) / L_0 (normalised_runout);
+normalised_extent(traj) is that of the extent from the first to the last frame.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from runout.gns.evaluation import position_mse
 from runout.trajectory import Trajectory
-
-__all__ = [
-    "absolute_percentage_error", "coefficient_of_variation", "displacement_error", "final_displacement",
-    "normalised_runout", "position_mse", "r_squared", "runout_front", "side_runouts", "velocities",
-]
 
 
 def runout_front(traj: Trajectory, frame: int = -1) -> float:
@@ -23,10 +22,25 @@ def runout_front(traj: Trajectory, frame: int = -1) -> float:
     return float(traj.positions[frame, traj.soil, 0].max())
 
 
+def runout_extent(traj: Trajectory, frame: int = -1) -> float:
+    """Horizontal extent of the soil at a frame (m): max x - min x; 0 without soil."""
+    x = traj.positions[frame, traj.soil, 0]
+    return float(x.max() - x.min()) if x.size else 0.0
+
+
 def normalised_runout(initial_length: float, final_length: float) -> float:
     """L^n = (L_f - L_0) / L_0 (paper §5.1.1); for a column against the left wall both are
     front positions (m)."""
     return (final_length - initial_length) / initial_length
+
+
+def normalised_extent(traj: Trajectory) -> float:
+    """normalised_runout of the soil's extent, first to last frame; 0 when it spans nothing."""
+    return _growth(runout_extent(traj, 0), runout_extent(traj, -1))
+
+
+def _growth(initial: float, final: float) -> float:
+    return normalised_runout(initial, final) if initial > 0 else 0.0
 
 
 def side_runouts(traj: Trajectory, centre: float, frame: int = -1) -> tuple[float, float]:
@@ -55,6 +69,36 @@ def r_squared(predicted, truth) -> float:
     residual = np.sum((predicted - truth) ** 2)
     spread = np.sum((truth - truth.mean()) ** 2)
     return float(1.0 - residual / spread) if spread > 0 else float("nan")
+
+
+def position_mse(predicted: Trajectory, truth: Trajectory) -> np.ndarray:
+    """[T] mean squared position error of the soil points per frame (m^2), over the frames
+    both trajectories have."""
+    t = min(predicted.n_frames, truth.n_frames)
+    soil = truth.soil
+    diff = predicted.positions[:t, soil].astype(np.float64) - truth.positions[:t, soil]
+    return (diff**2).sum(axis=-1).mean(axis=-1)
+
+
+def compare(predicted: Trajectory, truth: Trajectory) -> dict:
+    """How well a prediction (a GNS rollout) follows its truth (the MPM): position MSE (final
+    and mean over time), extent runouts, their normalised runouts from the truth's initial
+    extent and the relative runout error (L_f,GNS - L_f,MPM) / L_f,MPM, read at the last
+    frame the two share."""
+    t = min(predicted.n_frames, truth.n_frames)
+    mse = position_mse(predicted, truth)
+    runout_gns, runout_mpm = runout_extent(predicted, t - 1), runout_extent(truth, t - 1)
+    initial = runout_extent(truth, 0)
+    return {
+        "frames_compared": int(t),
+        "position_mse_final_m2": float(mse[-1]),
+        "position_mse_mean_m2": float(mse.mean()),
+        "runout_gns_m": runout_gns,
+        "runout_mpm_m": runout_mpm,
+        "normalised_runout_gns": _growth(initial, runout_gns),
+        "normalised_runout_mpm": _growth(initial, runout_mpm),
+        "runout_error": (runout_gns - runout_mpm) / runout_mpm if runout_mpm > 0 else 0.0,
+    }
 
 
 def displacement_error(predicted: Trajectory, truth: Trajectory) -> np.ndarray:

@@ -32,11 +32,11 @@ from runout.errors import InputError, Interrupted
 from runout.gns.checkpoint import (
     check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint, widen_material_features,
 )
-from runout.gns.evaluation import compare
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator, corrected_target, movable_mask, random_walk_noise
 from runout.gns.training_range import measure as measure_ranges
+from runout.metrics import compare
 from runout.simfiles import read_metadata
 
 CHECKPOINT = "checkpoint.pt"

@@ -70,8 +70,8 @@ def at_model_spacing(scene, simulator):
 
 def _forward(simulator, scene_path: Path, out: Path, quick: bool) -> tuple[Path, Path]:
     """GNS runout of a scene from rest: animation.gif and final.png."""
-    from runout.gns.evaluation import runout_extent
     from runout.gns.rollout import rollout_trajectory, scene_at_rest
+    from runout.metrics import runout_extent
     from runout.plots import save_animation, save_frame
     from runout.scene import load_scene
 

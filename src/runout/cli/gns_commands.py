@@ -176,8 +176,8 @@ def check_rollout_memory(points: int, frames: int, device: str) -> None:
 
 
 def _write_outputs(predicted, truth, out: Path, feature_width: int, animation: bool) -> dict:
-    from runout.gns.evaluation import compare, normalised_runout, position_mse, runout_extent
     from runout.gns.figures import save_animation, save_error_plot, save_snapshots
+    from runout.metrics import compare, normalised_extent, position_mse, runout_extent
     from runout.trajectory import save_trajectory
 
     predicted.name = f"{predicted.name} (GNS)"
@@ -186,7 +186,7 @@ def _write_outputs(predicted, truth, out: Path, feature_width: int, animation: b
     metrics = {
         "frames": predicted.n_frames,
         "runout_m": runout_extent(predicted, -1),
-        "normalised_runout": normalised_runout(predicted),
+        "normalised_runout": normalised_extent(predicted),
         "wall_s": predicted.info["wall_s"],
     }
     if truth is not None:
