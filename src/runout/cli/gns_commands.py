@@ -90,7 +90,7 @@ def rollout(
 ) -> None:
     """Roll the GNS out from 6 frames until FRAMES or until the flow stops."""
     from runout.gns.checkpoint import load_simulator
-    from runout.gns.figures import animation_name
+    from runout.plots.animation import animation_name
     from runout.gns.rollout import rollout_trajectory
     from runout.gns.training_range import range_warnings
     from runout.outputs import check_folder, claim
@@ -176,8 +176,8 @@ def check_rollout_memory(points: int, frames: int, device: str) -> None:
 
 
 def _write_outputs(predicted, truth, out: Path, feature_width: int, animation: bool) -> dict:
-    from runout.gns.figures import save_animation, save_error_plot, save_snapshots
     from runout.metrics import compare, normalised_extent, position_mse, runout_extent
+    from runout.plots import save_error_plot, save_rollout_animation, save_snapshots
     from runout.trajectory import save_trajectory
 
     predicted.name = f"{predicted.name} (GNS)"
@@ -193,6 +193,6 @@ def _write_outputs(predicted, truth, out: Path, feature_width: int, animation: b
         metrics.update(compare(predicted, truth))
         save_error_plot(position_mse(predicted, truth), predicted.frame_dt, out / "position_mse.png")
     if animation:
-        metrics["animation"] = str(save_animation(predicted, truth, out / "animation"))
+        metrics["animation"] = str(save_rollout_animation(predicted, truth, out / "animation"))
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics
