@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import torch
 
 from runout.gns.graph import radius_graph
-from runout.gns.samples import Batch
+from runout.gns.samples import TrainingBatch
 from runout.gns.schema import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.train import Context, TrainConfig, _train_step
@@ -45,7 +45,7 @@ class LatticeData:
 
     frames: list[torch.Tensor]
 
-    def sample(self, batch_size: int, generator) -> Batch:
+    def sample(self, batch_size: int, generator) -> TrainingBatch:
         n = self.frames[0].shape[0]
         device = self.frames[0].device
         window = torch.cat([f[:, :6] for f in self.frames[:batch_size]])
@@ -53,7 +53,7 @@ class LatticeData:
         ptype = torch.full((n * batch_size,), 6, device=device)
         material = torch.full((n * batch_size, 1), 0.5, device=device)
         graph = torch.arange(batch_size, device=device).repeat_interleave(n)
-        return Batch(window, nxt, ptype, material, graph)
+        return TrainingBatch(window, nxt, ptype, material, graph)
 
 
 def timed(fn, repeats: int, device) -> float:

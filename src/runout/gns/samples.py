@@ -19,7 +19,7 @@ from runout.simfiles import read_simulations
 
 
 @dataclass
-class Batch:
+class TrainingBatch:
     window: torch.Tensor  # [N, history, 2] m, graphs concatenated
     next_position: torch.Tensor  # [N, 2] m
     particle_type: torch.Tensor  # [N]
@@ -58,12 +58,12 @@ class Simulations:
         """The node-feature schema these data call for (base's other fields)."""
         return base.with_material_features(self.material_names)
 
-    def sample(self, batch_size: int, generator: torch.Generator) -> Batch:
+    def sample(self, batch_size: int, generator: torch.Generator) -> TrainingBatch:
         picks = torch.randint(self.n_windows, (batch_size,), generator=generator).tolist()
         parts = [self._window(k) for k in picks]
         window, nxt, ptype, material = (torch.cat(x) for x in zip(*parts))
         graph = torch.cat([torch.full((len(p[0]),), g, device=window.device) for g, p in enumerate(parts)])
-        return Batch(window, nxt, ptype, material, graph)
+        return TrainingBatch(window, nxt, ptype, material, graph)
 
     def _window(self, k: int):
         sim = bisect.bisect_right(self._first_window, k) - 1
