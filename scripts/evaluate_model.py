@@ -42,8 +42,7 @@ def test_split(simulator, data: Path) -> dict:
 
 
 def column(simulator, scene_path: Path, frames: int, out: Path) -> dict:
-    from runout.cli.demo_commands import at_model_spacing
-    from runout.gns.rollout import rollout_trajectory, scene_at_rest
+    from runout.gns.rollout import at_model_spacing, rollout_trajectory, scene_at_rest
     from runout.metrics import normalised_extent
     from runout.mpm import simulate
     from runout.scene import load_scene

@@ -1,4 +1,4 @@
-"""`runout demo`: a forward GNS runout and an inverse back-calculation with the shipped model.
+"""`runout demo` (the work is runout.demo.run_demo): a forward GNS runout and an inverse back-calculation with the shipped model.
 
 (a) The four-layer slope (examples/four_layer_slope.toml) fails from rest under the GNS:
     animation.gif and final.png.
@@ -12,150 +12,30 @@ model trained at coarse cells sees graphs like those it was trained on.
 
 from __future__ import annotations
 
-import hashlib
-import shutil
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import typer
 
 from runout.cli.app import app
-from runout.errors import InputError
 
 REPO = Path(__file__).resolve().parents[3]
-SLOPE = "four_layer_slope.toml"
-DAM = "small_dam.toml"
-FREE_MATERIAL = "m1_downstream_lower"  # the dam's lower downstream shell: phi = 0, c = s_u = 40 kPa
-FORWARD_FRAMES = 400  # frames at most; the rollout stops earlier once the slope is at rest
-QUICK_FRAMES = 12  # frames in --quick (a wiring check, not a result)
 
 
 @app.command()
 def demo(
     out: Path = typer.Option(Path("out/demo"), "--out", help="Output folder (created)."),
     model: Path = typer.Option(REPO / "models" / "slope.pt", "--model", help="GNS checkpoint with cohesion input."),
-    examples: Path = typer.Option(REPO / "examples", "--examples", help=f"Folder holding {SLOPE} and {DAM}."),
+    examples: Path = typer.Option(REPO / "examples", "--examples", help="Folder holding four_layer_slope.toml and small_dam.toml."),
     quick: bool = typer.Option(False, "--quick", hidden=True, help="Few frames and iterations: a wiring check for tests."),
     force: bool = typer.Option(False, "--force", help="Replace another command's results in --out."),
 ) -> None:
     """Forward runout of the four-layer slope and inverse back-calculation of one strength on a
     small dam, with the shipped GNS; prints where the pictures are (a few minutes on a CPU)."""
-    from runout.gns.checkpoint import load_simulator
-    from runout.outputs import prepare_folder
+    from runout.demo import run_demo
 
-    for name in (SLOPE, DAM):
-        if not (examples / name).is_file():
-            raise InputError(f"--examples {examples}: {name} is missing there.")
-    prepare_folder(out, "demo", ("forward", "inverse"), force=force)
     t0 = time.perf_counter()
-    simulator = load_simulator(model, "cpu")
-    if simulator.schema.material_width < 2:
-        raise InputError(f"{model}: the demo needs a model with a cohesion input (a fine-tuned slope model).")
-    forward = _forward(simulator, examples / SLOPE, out / "forward", quick)
-    inverse = _inverse(simulator, model, examples / DAM, out / "inverse", quick)
+    pictures = run_demo(out, model, examples, quick, force, log=typer.echo)
     typer.echo(f"demo done in {time.perf_counter() - t0:.0f} s. Pictures:")
-    for path in (*forward, *inverse):
+    for path in pictures:
         typer.echo(f"  {path}")
-
-
-def at_model_spacing(scene, simulator):
-    """The scene with cells sized so that its points sit at the model's training spacing."""
-    from runout.gns.schema import RADIUS_PER_SPACING
-
-    spacing = simulator.radius / RADIUS_PER_SPACING  # m
-    cell = round(spacing * scene.domain.points_per_cell, 6)
-    return replace(scene, domain=replace(scene.domain, cell_size=cell))
-
-
-def _forward(simulator, scene_path: Path, out: Path, quick: bool) -> tuple[Path, Path]:
-    """GNS runout of a scene from rest: animation.gif and final.png."""
-    from runout.gns.rollout import rollout_trajectory, scene_at_rest
-    from runout.metrics import runout_extent
-    from runout.plots import save_animation, save_frame
-    from runout.scene import load_scene
-
-    scene = at_model_spacing(load_scene(scene_path), simulator)
-    start = scene_at_rest(scene, simulator.schema.history)
-    frames = QUICK_FRAMES if quick else FORWARD_FRAMES
-    t0 = time.perf_counter()
-    traj = rollout_trajectory(simulator, start, frames, stop_speed=0.05)
-    traj.name = f"{scene.name} (GNS)"
-    typer.echo(
-        f"forward: {traj.n_points} points at {scene.domain.cell_size:g} m cells, {traj.n_frames} frames "
-        f"({traj.n_frames * traj.frame_dt:.1f} s of flow) in {time.perf_counter() - t0:.0f} s; "
-        f"deposit spans {runout_extent(traj, -1):.0f} m"
-    )
-    out.mkdir(parents=True, exist_ok=True)
-    gif = save_animation([traj], out / "animation.gif", labels=["GNS"], stride=None if not quick else 6)
-    final = save_frame(traj, traj.n_frames - 1, out / "final.png")
-    return gif, final
-
-
-def _inverse(simulator, model: Path, scene_path: Path, out: Path, quick: bool) -> tuple[Path, ...]:
-    """Back-calculate c of the dam's lower downstream shell from its MPM deposit."""
-    from runout.inverse import invert, summary_lines
-    from runout.scene import load_scene, save_scene
-
-    scene = at_model_spacing(load_scene(scene_path), simulator)
-    if FREE_MATERIAL not in scene.materials:
-        raise InputError(f"{scene_path}: the demo needs a material named {FREE_MATERIAL}.")
-    if quick:
-        scene = replace(scene, time=replace(scene.time, frames=QUICK_FRAMES))
-    out.mkdir(parents=True, exist_ok=True)
-    save_scene(scene, out / "scene.toml")
-    target = _mpm_target(scene, out)
-    spec = _write_spec(out, target.name, scene.materials[FREE_MATERIAL], quick)
-    result_dir = out / "result"
-    shutil.rmtree(result_dir, ignore_errors=True)  # a demo starts afresh (the model may have changed)
-    t0 = time.perf_counter()
-    typer.echo(f"inverse: L-BFGS-B on c of {FREE_MATERIAL}, one line per GNS rollout with its gradient")
-    result = invert(spec, result_dir, model=model, log=lambda line: typer.echo(f"  {line}"))
-    typer.echo(f"inverse: {result.best.evaluations} evaluations in {time.perf_counter() - t0:.0f} s")
-    for line in summary_lines(result):
-        typer.echo(f"  {line}")
-    typer.echo(f"  true value: c = {scene.materials[FREE_MATERIAL].cohesion:g} kPa (the MPM target's)")
-    return tuple(result_dir / name for name in ("loss.png", "parameters.png", "deposit.png"))
-
-
-def _mpm_target(scene, out: Path) -> Path:
-    """The scene's MPM trajectory, cached in out/mpm_<digest of the scene>."""
-    from runout.mpm import simulate
-    from runout.scene import scene_to_toml
-    from runout.trajectory import save_trajectory
-
-    digest = hashlib.sha256(scene_to_toml(scene).encode()).hexdigest()[:10]
-    folder = out / f"mpm_{digest}"
-    if (folder / "trajectory.npz").is_file():
-        typer.echo(f"target: the MPM run cached in {folder}")
-        return folder
-    t0 = time.perf_counter()
-    traj = simulate([scene], device="cpu", progress=False)[0]
-    save_trajectory(traj, folder)
-    typer.echo(f"target: MPM, {traj.n_points} points, {traj.n_frames} frames in {time.perf_counter() - t0:.0f} s")
-    return folder
-
-
-def _write_spec(out: Path, target: str, material, quick: bool) -> Path:
-    """The inverse spec: c of FREE_MATERIAL free in [10, 100] kPa, everything else as in the scene."""
-    iterations, evaluations = (1, 2) if quick else (8, 12)
-    gtol = 1e6 if quick else 1e-8  # quick: L-BFGS-B stops after evaluating the start
-    text = f"""# written by `runout demo`
-scene = "scene.toml"
-
-[target]
-trajectory = "{target}"
-frames = "final"
-
-[parameters.{FREE_MATERIAL}]
-phi = {{ fixed = {material.friction_angle:g} }}
-c = {{ initial = 70.0, lower = 10.0, upper = 100.0 }}
-
-[optimiser]
-max_iterations = {iterations}
-max_evaluations = {evaluations}
-gtol = {gtol:g}
-"""
-    path = out / "spec.toml"
-    path.write_text(text)
-    return path

@@ -15,7 +15,6 @@ from runout.errors import InputError
 MAX_ROLLOUT_FRAMES = 1_000_000  # as many as a scene may ask the MPM for
 MAX_STOP_SPEED = 100.0  # m/s
 MAX_NOISE_STD = 10.0  # m/s, training noise on velocities (paper: 0.067 m/s)
-ROLLOUT_FILES = ("trajectory.npz", "metadata.json", "snapshots.png", "metrics.json", "position_mse.png")
 
 
 @app.command()
@@ -90,17 +89,20 @@ def rollout(
 ) -> None:
     """Roll the GNS out from 6 frames until FRAMES or until the flow stops."""
     from runout.gns.checkpoint import load_simulator
-    from runout.plots.animation import animation_name
     from runout.gns.rollout import rollout_trajectory
+    from runout.gns.run import ROLLOUT_FILES, initial_state, write_rollout_outputs
     from runout.gns.training_range import range_warnings
     from runout.outputs import check_folder, claim
+    from runout.plots.animation import animation_name
 
     check_range("--frames", frames, 0, MAX_ROLLOUT_FRAMES)
     check_range("--stop-speed", stop_speed, 0.0, MAX_STOP_SPEED, " m/s")
     writes = ROLLOUT_FILES + ((animation_name(),) if animation else ()) + (("vtk",) if vtk else ())
     folder = check_folder(out, "rollout", writes, force=force)
     simulator = load_simulator(model, device)
-    initial, truth = _initial_state(source, split, index, simulator)
+    initial, truth, warnings = initial_state(source, split, index, simulator)
+    for line in warnings:
+        typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW)
     n_frames = frames or (truth.n_frames if truth is not None else initial.info.get("frames", 480))
     if n_frames <= simulator.schema.history:
         raise InputError(f"--frames = {n_frames} must exceed the {simulator.schema.history} initial frames.")
@@ -111,49 +113,12 @@ def rollout(
     predicted = rollout_trajectory(simulator, initial, n_frames, stop_speed or None, progress=True)  # RunFailed: exit 1
     predicted.info["wall_s"] = round(time.perf_counter() - t0, 3)
     claim(folder)
-    metrics = _write_outputs(predicted, truth, out, simulator.schema.material_width, animation)
+    metrics = write_rollout_outputs(predicted, truth, out, simulator.schema.material_width, animation)
     if vtk:
         from runout.vtk import write_vtk
 
         metrics["vtk"] = str(write_vtk(predicted, out / "vtk"))
     typer.echo(json.dumps(metrics, indent=2))
-
-
-def _initial_state(source: Path, split: str, index: int, simulator):
-    """(trajectory whose first frames start the rollout, ground truth or None)."""
-    from runout.gns.rollout import scene_at_rest
-    from runout.scene import load_scene
-    from runout.trajectory import load_trajectory
-
-    if source.is_file():
-        scene = load_scene(source)
-        start = scene_at_rest(scene, simulator.schema.history)
-        start.info["frames"] = scene.time.frames
-        _warn_ignored_cohesion(scene, simulator)
-        return start, None
-    if (source / "trajectory.npz").is_file():
-        truth = load_trajectory(source)
-        return truth, truth
-    if (source / f"{split}.npz").is_file():
-        truth = _dataset_trajectory(source, split, index, simulator)
-        return truth, truth
-    raise InputError(f"{source}: neither a scene file, a trajectory folder (trajectory.npz) nor a dataset folder with {split}.npz.")
-
-
-def _dataset_trajectory(folder: Path, split: str, index: int, simulator):
-    from runout.dataset import load_split_trajectory
-    from runout.gns.checkpoint import check_schema
-    from runout.gns.schema import material_names_for_width
-
-    truth = load_split_trajectory(folder, split, index)
-    data_schema = simulator.schema.with_material_features(material_names_for_width(truth.info.pop("material_width")))
-    check_schema(simulator, data_schema, "the model", folder / f"{split}.npz")
-    return truth
-
-
-def _warn_ignored_cohesion(scene, simulator) -> None:
-    if simulator.schema.material_width < 2 and any(m.cohesion > 0 for m in scene.materials.values()):
-        typer.secho("warning: this model has no cohesion input; the scene's cohesion is ignored.", err=True, fg=typer.colors.YELLOW)
 
 
 def check_range(option: str, value, lo, hi, unit: str = "") -> None:
@@ -173,26 +138,3 @@ def check_rollout_memory(points: int, frames: int, device: str) -> None:
             f"--frames = {frames} with {points} points needs about {need / GIB:.1f} GiB of memory but this "
             f"machine has {have / GIB:.1f} GiB; ask for fewer frames."
         )
-
-
-def _write_outputs(predicted, truth, out: Path, feature_width: int, animation: bool) -> dict:
-    from runout.metrics import compare, normalised_extent, position_mse, runout_extent
-    from runout.plots import save_error_plot, save_rollout_animation, save_snapshots
-    from runout.trajectory import save_trajectory
-
-    predicted.name = f"{predicted.name} (GNS)"
-    save_trajectory(predicted, out, feature_width)
-    save_snapshots(predicted, out / "snapshots.png")
-    metrics = {
-        "frames": predicted.n_frames,
-        "runout_m": runout_extent(predicted, -1),
-        "normalised_runout": normalised_extent(predicted),
-        "wall_s": predicted.info["wall_s"],
-    }
-    if truth is not None:
-        metrics.update(compare(predicted, truth))
-        save_error_plot(position_mse(predicted, truth), predicted.frame_dt, out / "position_mse.png")
-    if animation:
-        metrics["animation"] = str(save_rollout_animation(predicted, truth, out / "animation"))
-    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
-    return metrics

@@ -32,9 +32,10 @@ def scene_key(scene: Scene, solver_version: str = SOLVER_VERSION) -> str:
 class MpmCache:
     root: Path = DEFAULT_CACHE
     simulated: int = 0  # scenes this object has sent to the MPM (the rest were cache hits)
+    prefix: str = ""  # of every entry's folder name, e.g. "mpm_"
 
     def path(self, scene: Scene) -> Path:
-        return Path(self.root) / scene_key(scene)
+        return Path(self.root) / f"{self.prefix}{scene_key(scene)}"
 
     def has(self, scene: Scene) -> bool:
         return (self.path(scene) / "metadata.json").is_file()

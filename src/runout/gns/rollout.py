@@ -8,13 +8,15 @@ RolloutDiverged. With `checkpoint=True` each step is recomputed in the backward 
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import torch
 from torch.utils.checkpoint import checkpoint as recompute_in_backward
 from tqdm.auto import tqdm
 
 from runout.errors import RunFailed
-from runout.gns.schema import HISTORY
+from runout.gns.schema import HISTORY, RADIUS_PER_SPACING
 from runout.gns.simulator import Simulator, movable_mask
 from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
@@ -123,3 +125,11 @@ def scene_at_rest(scene: Scene, history: int = HISTORY) -> Trajectory:
     points = fill_points(scene)
     positions = np.repeat(points.position[None].astype(np.float32), history, axis=0)
     return trajectory_for_scene(scene, positions, points.particle_type, points.material_id)
+
+
+def at_model_spacing(scene: Scene, simulator: Simulator) -> Scene:
+    """The scene with cells sized so that its points sit at the model's training spacing
+    (its connectivity radius / RADIUS_PER_SPACING), so the model sees graphs like its own."""
+    spacing = simulator.radius / RADIUS_PER_SPACING  # m
+    cell = round(spacing * scene.domain.points_per_cell, 6)
+    return replace(scene, domain=replace(scene.domain, cell_size=cell))

@@ -1,0 +1,133 @@
+"""`runout demo`: a forward GNS runout and an inverse back-calculation with the shipped model.
+
+(a) The four-layer slope (examples/four_layer_slope.toml) fails from rest under the GNS:
+    animation.gif and final.png.
+(b) The small dam (examples/small_dam.toml) collapses in the MPM (the target, cached); the
+    inverse analysis back-calculates the undrained strength c of its lower downstream shell
+    from the final deposit with the GNS: history.csv, loss.png, parameters.png, deposit.png.
+
+Scenes are filled at the model's own point spacing (its connectivity radius / 2.3), so a
+model trained at coarse cells sees graphs like those it was trained on.
+"""
+
+from __future__ import annotations
+
+import shutil
+import time
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+
+from runout.errors import InputError
+from runout.evaluate.mpm_cache import MpmCache
+from runout.gns.checkpoint import load_simulator
+from runout.gns.rollout import at_model_spacing, rollout_trajectory, scene_at_rest
+from runout.inverse import invert, summary_lines
+from runout.metrics import runout_extent
+from runout.outputs import prepare_folder
+from runout.plots import save_animation, save_frame
+from runout.scene import load_scene, save_scene
+from runout.trajectory import load_trajectory
+
+Log = Callable[[str], None]
+SLOPE = "four_layer_slope.toml"
+DAM = "small_dam.toml"
+FREE_MATERIAL = "m1_downstream_lower"  # the dam's lower downstream shell: phi = 0, c = s_u = 40 kPa
+FORWARD_FRAMES = 400  # frames at most; the rollout stops earlier once the slope is at rest
+QUICK_FRAMES = 12  # frames in --quick (a wiring check, not a result)
+
+
+def run_demo(out: Path, model: Path, examples: Path, quick: bool = False, force: bool = False, log: Log = print) -> list[Path]:
+    """The forward runout of EXAMPLES/four_layer_slope.toml and the inverse on
+    EXAMPLES/small_dam.toml with the GNS checkpoint MODEL, written under OUT; returns the
+    pictures. `quick`: few frames and iterations (a wiring check)."""
+    for name in (SLOPE, DAM):
+        if not (examples / name).is_file():
+            raise InputError(f"--examples {examples}: {name} is missing there.")
+    prepare_folder(out, "demo", ("forward", "inverse"), force=force)
+    simulator = load_simulator(model, "cpu")
+    if simulator.schema.material_width < 2:
+        raise InputError(f"{model}: the demo needs a model with a cohesion input (a fine-tuned slope model).")
+    forward = _forward(simulator, examples / SLOPE, out / "forward", quick, log)
+    inverse = _inverse(simulator, model, examples / DAM, out / "inverse", quick, log)
+    return [*forward, *inverse]
+
+
+def _forward(simulator, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, Path]:
+    """GNS runout of a scene from rest: animation.gif and final.png."""
+    scene = at_model_spacing(load_scene(scene_path), simulator)
+    start = scene_at_rest(scene, simulator.schema.history)
+    frames = QUICK_FRAMES if quick else FORWARD_FRAMES
+    t0 = time.perf_counter()
+    traj = rollout_trajectory(simulator, start, frames, stop_speed=0.05)
+    traj.name = f"{scene.name} (GNS)"
+    log(
+        f"forward: {traj.n_points} points at {scene.domain.cell_size:g} m cells, {traj.n_frames} frames "
+        f"({traj.n_frames * traj.frame_dt:.1f} s of flow) in {time.perf_counter() - t0:.0f} s; "
+        f"deposit spans {runout_extent(traj, -1):.0f} m"
+    )
+    out.mkdir(parents=True, exist_ok=True)
+    gif = save_animation([traj], out / "animation.gif", labels=["GNS"], stride=None if not quick else 6)
+    final = save_frame(traj, traj.n_frames - 1, out / "final.png")
+    return gif, final
+
+
+def _inverse(simulator, model: Path, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, ...]:
+    """Back-calculate c of the dam's lower downstream shell from its MPM deposit."""
+    scene = at_model_spacing(load_scene(scene_path), simulator)
+    if FREE_MATERIAL not in scene.materials:
+        raise InputError(f"{scene_path}: the demo needs a material named {FREE_MATERIAL}.")
+    if quick:
+        scene = replace(scene, time=replace(scene.time, frames=QUICK_FRAMES))
+    out.mkdir(parents=True, exist_ok=True)
+    save_scene(scene, out / "scene.toml")
+    target = _mpm_target(scene, out, log)
+    spec = _write_spec(out, target.name, scene.materials[FREE_MATERIAL], quick)
+    result_dir = out / "result"
+    shutil.rmtree(result_dir, ignore_errors=True)  # a demo starts afresh (the model may have changed)
+    t0 = time.perf_counter()
+    log(f"inverse: L-BFGS-B on c of {FREE_MATERIAL}, one line per GNS rollout with its gradient")
+    result = invert(spec, result_dir, model=model, log=lambda line: log(f"  {line}"))
+    log(f"inverse: {result.best.evaluations} evaluations in {time.perf_counter() - t0:.0f} s")
+    for line in summary_lines(result):
+        log(f"  {line}")
+    log(f"  true value: c = {scene.materials[FREE_MATERIAL].cohesion:g} kPa (the MPM target's)")
+    return tuple(result_dir / name for name in ("loss.png", "parameters.png", "deposit.png"))
+
+
+def _mpm_target(scene, out: Path, log: Log) -> Path:
+    """The scene's MPM trajectory, cached in out/mpm_<key of the solver version and scene>."""
+    cache = MpmCache(out, prefix="mpm_")
+    if cache.has(scene):
+        log(f"target: the MPM run cached in {cache.path(scene)}")
+        return cache.path(scene)
+    t0 = time.perf_counter()
+    folder = cache.ensure([scene], progress=False)[0]
+    traj = load_trajectory(folder)
+    log(f"target: MPM, {traj.n_points} points, {traj.n_frames} frames in {time.perf_counter() - t0:.0f} s")
+    return folder
+
+
+def _write_spec(out: Path, target: str, material, quick: bool) -> Path:
+    """The inverse spec: c of FREE_MATERIAL free in [10, 100] kPa, everything else as in the scene."""
+    iterations, evaluations = (1, 2) if quick else (8, 12)
+    gtol = 1e6 if quick else 1e-8  # quick: L-BFGS-B stops after evaluating the start
+    text = f"""# written by `runout demo`
+scene = "scene.toml"
+
+[target]
+trajectory = "{target}"
+frames = "final"
+
+[parameters.{FREE_MATERIAL}]
+phi = {{ fixed = {material.friction_angle:g} }}
+c = {{ initial = 70.0, lower = 10.0, upper = 100.0 }}
+
+[optimiser]
+max_iterations = {iterations}
+max_evaluations = {evaluations}
+gtol = {gtol:g}
+"""
+    path = out / "spec.toml"
+    path.write_text(text)
+    return path

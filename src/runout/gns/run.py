@@ -1,0 +1,70 @@
+"""One GNS rollout run as `runout rollout` makes it: the starting state from a scene file, a
+trajectory folder or a dataset split, and the files the run writes."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from runout.dataset import load_split_trajectory
+from runout.errors import InputError
+from runout.gns.checkpoint import check_schema
+from runout.gns.rollout import scene_at_rest
+from runout.gns.schema import material_names_for_width
+from runout.gns.simulator import Simulator
+from runout.metrics import compare, normalised_extent, position_mse, runout_extent
+from runout.plots import save_error_plot, save_rollout_animation, save_snapshots
+from runout.scene import Scene, load_scene
+from runout.trajectory import Trajectory, load_trajectory, save_trajectory
+
+ROLLOUT_FILES = ("trajectory.npz", "metadata.json", "snapshots.png", "metrics.json", "position_mse.png")
+
+
+def initial_state(source: Path, split: str, index: int, simulator: Simulator) -> tuple[Trajectory, Trajectory | None, list[str]]:
+    """(trajectory whose first frames start the rollout, ground truth or None, warnings)."""
+    if source.is_file():
+        scene = load_scene(source)
+        start = scene_at_rest(scene, simulator.schema.history)
+        start.info["frames"] = scene.time.frames
+        return start, None, _ignored_cohesion(scene, simulator)
+    if (source / "trajectory.npz").is_file():
+        truth = load_trajectory(source)
+        return truth, truth, []
+    if (source / f"{split}.npz").is_file():
+        truth = _dataset_trajectory(source, split, index, simulator)
+        return truth, truth, []
+    raise InputError(f"{source}: neither a scene file, a trajectory folder (trajectory.npz) nor a dataset folder with {split}.npz.")
+
+
+def _dataset_trajectory(folder: Path, split: str, index: int, simulator: Simulator) -> Trajectory:
+    truth = load_split_trajectory(folder, split, index)
+    data_schema = simulator.schema.with_material_features(material_names_for_width(truth.info.pop("material_width")))
+    check_schema(simulator, data_schema, "the model", folder / f"{split}.npz")
+    return truth
+
+
+def _ignored_cohesion(scene: Scene, simulator: Simulator) -> list[str]:
+    if simulator.schema.material_width < 2 and any(m.cohesion > 0 for m in scene.materials.values()):
+        return ["this model has no cohesion input; the scene's cohesion is ignored."]
+    return []
+
+
+def write_rollout_outputs(predicted: Trajectory, truth: Trajectory | None, out: Path, feature_width: int, animation: bool) -> dict:
+    """OUT/trajectory.npz + metadata.json, snapshots.png, metrics.json, and against a truth
+    position_mse.png; an animation when asked. Returns the metrics."""
+    predicted.name = f"{predicted.name} (GNS)"
+    save_trajectory(predicted, out, feature_width)
+    save_snapshots(predicted, out / "snapshots.png")
+    metrics = {
+        "frames": predicted.n_frames,
+        "runout_m": runout_extent(predicted, -1),
+        "normalised_runout": normalised_extent(predicted),
+        "wall_s": predicted.info["wall_s"],
+    }
+    if truth is not None:
+        metrics.update(compare(predicted, truth))
+        save_error_plot(position_mse(predicted, truth), predicted.frame_dt, out / "position_mse.png")
+    if animation:
+        metrics["animation"] = str(save_rollout_animation(predicted, truth, out / "animation"))
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    return metrics
