@@ -18,6 +18,7 @@ from pathlib import Path
 import typer
 
 from runout.cli.app import app
+from runout.scene import EXAMPLES
 
 REPO = Path(__file__).resolve().parents[3]
 
@@ -26,7 +27,7 @@ REPO = Path(__file__).resolve().parents[3]
 def demo(
     out: Path = typer.Option(Path("out/demo"), "--out", help="Output folder (created)."),
     model: Path = typer.Option(REPO / "models" / "slope.pt", "--model", help="GNS checkpoint with cohesion input."),
-    examples: Path = typer.Option(REPO / "examples", "--examples", help="Folder holding four_layer_slope.toml and small_dam.toml."),
+    examples: Path = typer.Option(EXAMPLES, "--examples", help="Folder holding four_layer_slope.toml and small_dam.toml."),
     quick: bool = typer.Option(False, "--quick", hidden=True, help="Few frames and iterations: a wiring check for tests."),
     force: bool = typer.Option(False, "--force", help="Replace another command's results in --out."),
 ) -> None:

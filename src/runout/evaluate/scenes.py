@@ -11,9 +11,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from runout.errors import InputError
-from runout.scene import Scene, load_scene
+from runout.scene import EXAMPLES, Scene, load_scene
 
-EXAMPLES = Path(__file__).resolve().parents[3] / "examples"  # the repository's examples/ (src layout)
 COLUMN_ASPECTS = (0.5, 1.0, 2.0)  # H0 / L0 of examples/column_a{a}.toml
 COLUMN_MATERIAL = "soil"
 

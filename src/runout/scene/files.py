@@ -15,6 +15,8 @@ from runout.errors import InputError
 from runout.scene.model import Domain, Material, Region, Scene, TimeSpec
 from runout.scene.validation import validate_scene
 
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"  # the example scene files, shipped as package data
+
 _DOMAIN_KEYS = {"width", "height", "cell_size", "points_per_cell", "base_friction", "wall_friction"}
 _TIME_KEYS = {"frame_dt", "frames", "cfl", "flip", "damping"}
 _MATERIAL_KEYS = {
