@@ -88,3 +88,26 @@ def test_corner_of_shear_and_tension():
     s1, s3, _, _ = principal(out)
     assert s1.item() == pytest.approx(cut, abs=1e-6)
     assert s3.item() == pytest.approx(cut - 2 * c, rel=1e-9)
+
+
+def test_dilute_points_carry_no_stress_and_take_it_again_when_packed():
+    """A point spread over more than twice its packed area has lost its contacts: after a
+    substep it carries no stress (a cohesive column on a rough base otherwise grew points to
+    20,000 times their area, with stress, and blew up); packed points keep theirs."""
+    from runout.mpm.batch import build_batch
+    from runout.mpm.solver import substep
+    from runout.scene import scene_from_dict
+
+    scene = scene_from_dict({"domain": {"width": 40.0, "height": 40.0}, "time": {"frames": 2},
+                             "materials": {"s": {"friction_angle": 30.0, "cohesion": 50.0}},
+                             "regions": [{"material": "s", "polygon": [[0, 0], [20, 0], [20, 20], [0, 20]]}]})
+    batch = build_batch([scene], torch.device("cpu"), torch.float64)
+    pts = batch.pts
+    spread = torch.arange(len(pts.x)) % 3 == 0
+    pts.volume = torch.where(spread, 2.5 * pts.rest_volume, pts.volume)
+    substep(pts, batch.grid, batch.dt)
+    assert torch.all(pts.stress[spread] == 0)
+    assert torch.all(pts.stress[~spread, 1] < 0)
+    pts.volume = pts.rest_volume.clone()
+    substep(pts, batch.grid, batch.dt)
+    assert torch.any(pts.stress[spread] != 0)

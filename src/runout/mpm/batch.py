@@ -133,6 +133,7 @@ def build_batch(scenes: list[Scene], device: torch.device, dtype: torch.dtype) -
         x=t(np.concatenate(xs), dtype), v=t(np.concatenate(vs), dtype),
         C=torch.zeros(n, 2, 2, dtype=dtype, device=device),
         stress=t(np.concatenate(stress), dtype), volume=t(np.concatenate(vol), dtype),
+        rest_volume=t(np.concatenate(vol), dtype),
         mass=t(np.concatenate(mass), dtype), scene=scene_t,
         upper=t(np.concatenate(upper), dtype), mat=mat,
         node_base=grid.node_offset[scene_t], ny=ny_p, stencil_offsets=stencil_offsets(ny_p),

@@ -52,6 +52,7 @@ class Points:
     C: torch.Tensor  # [P, 2, 2] APIC affine velocity = velocity gradient, 1/s
     stress: torch.Tensor  # [P, 4] (sxx, syy, sxy, szz) Pa
     volume: torch.Tensor  # [P] m^2
+    rest_volume: torch.Tensor  # [P] m^2 at the start (the seeding area)
     mass: torch.Tensor  # [P] kg/m
     scene: torch.Tensor  # [P] scene index
     upper: torch.Tensor  # [P, 2] domain size (clamp bound), m
@@ -171,6 +172,9 @@ def g2p(pts: Points, v_grid, v_before, cache, grid: Grid, dt: float, flip: float
     pts.x = torch.minimum(torch.clamp(x, min=eps), pts.upper - eps)
 
 
+DILUTE = 2.0  # volume ratio beyond which a point is dilute (no contacts, no stress)
+
+
 def substep(pts: Points, grid: Grid, dt: float, flip: float = 0.0, damping: float = 0.0) -> None:
     m_grid, p_grid, cache = p2g(pts, grid, dt)
     v_grid, v_before = grid_update(m_grid, p_grid, grid, dt, damping)
@@ -179,6 +183,10 @@ def substep(pts: Points, grid: Grid, dt: float, flip: float = 0.0, damping: floa
     pts.stress = update_stress(pts.stress, grad_v, dt, pts.mat)
     j = (1 + dt * grad_v[:, 0, 0]) * (1 + dt * grad_v[:, 1, 1]) - dt * dt * grad_v[:, 0, 1] * grad_v[:, 1, 0]
     pts.volume = pts.volume * j  # det(I + dt L)
+    # dilute soil carries no stress: a point spread over more than DILUTE times its packed area
+    # has lost its contacts (and its cohesion); it takes stress again, from zero, once packed
+    loose = pts.volume > DILUTE * pts.rest_volume
+    pts.stress = torch.where(loose[:, None], torch.zeros_like(pts.stress), pts.stress)
 
 
 def energies(pts: Points, n_scenes: int) -> tuple[torch.Tensor, torch.Tensor]:
