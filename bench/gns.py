@@ -114,8 +114,7 @@ def main() -> None:
           f" -> {REFERENCE['rollout_s'] / step:.1f}x faster than the reference")
 
     sim.train()
-    sim.network.checkpoint_steps = not args.no_checkpoint_layers
-    cfg = TrainConfig(data=None, out=None, bf16=args.bf16)
+    cfg = TrainConfig(data=None, out=None, bf16=args.bf16, checkpoint_layers=not args.no_checkpoint_layers)
     optimizer = torch.optim.Adam(sim.parameters(), lr=1e-4)
     data = LatticeData(frames)
     ctx = Context(device)

@@ -177,3 +177,13 @@ def test_blocked_inference_equals_the_differentiable_forward(monkeypatch):
     with torch.no_grad():
         blocked = sim(*args)
     torch.testing.assert_close(blocked, sim(*args).detach())
+
+
+def test_the_case_holds_kinematic_points_and_keeps_the_rest_inside_the_walls():
+    from runout.gns.simulator import Case
+
+    case = Case.of(torch.tensor([6, 3, 6]), [[0.0, 10.0], [0.0, 5.0]])
+    current = torch.tensor([[1.0, 1.0], [2.0, 0.5], [9.0, 4.0]])
+    predicted = torch.tensor([[-1.0, 2.0], [3.0, 3.0], [12.0, 6.0]])
+    out = case.constrain(predicted, current)
+    assert torch.equal(out, torch.tensor([[0.0, 2.0], [2.0, 0.5], [10.0, 5.0]]))

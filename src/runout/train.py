@@ -34,7 +34,7 @@ from runout.gns.checkpoint import (
 )
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator, corrected_target, movable_mask, random_walk_noise
+from runout.gns.simulator import Case, NetworkConfig, Normalisation, Simulator
 from runout.gns.training_range import measure as measure_ranges
 from runout.metrics import compare
 from runout.simfiles import read_metadata
@@ -123,7 +123,6 @@ def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
             meta, simulator.radius, f"measured on {data.path}",
         )
     simulator.to(ctx.device).train()
-    simulator.network.checkpoint_steps = cfg.checkpoint_layers
     optimizer = torch.optim.Adam(simulator.parameters(), lr=cfg.lr_init)
     if state:
         optimizer.load_state_dict(state["optimizer"])
@@ -193,15 +192,12 @@ class StopRequest:
 def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> torch.Tensor:
     sampler, noise_gen = _generators(cfg.seed, step, ctx)
     batch = data.sample(cfg.batch_size, sampler)
-    movable = movable_mask(batch.particle_type)
-    noise = random_walk_noise(batch.window, simulator.stats.noise_std, movable, noise_gen)
-    noisy = batch.window + noise
-    target = simulator.normalise_acceleration(corrected_target(noisy, batch.next_position, noise))
+    case = Case.of(batch.particle_type, bounds)
+    noisy, target = simulator.training_inputs(batch.window, batch.next_position, case, noise_gen)
     autocast = torch.autocast(ctx.device.type, dtype=torch.bfloat16) if cfg.bf16 else nullcontext()
-    with autocast:
-        predicted = model(noisy, batch.particle_type, batch.material, bounds, batch.graph)
-    error = (predicted.float() - target).square().sum(dim=1)
-    loss = (error * movable).sum() / movable.sum().clamp(min=1)
+    with autocast:  # through `model`, the DDP wrapper under torchrun, so gradients synchronise
+        predicted = model(noisy, batch.particle_type, batch.material, case.bounds, batch.graph, cfg.checkpoint_layers)
+    loss = simulator.loss(predicted, target, case)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     optimizer.step()

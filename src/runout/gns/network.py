@@ -88,13 +88,14 @@ class EncodeProcessDecode(nn.Module):
         self.edge_encoder = mlp(edge_in, hidden, hidden_layers, latent)
         self.processor = nn.ModuleList(InteractionStep(latent, hidden, hidden_layers) for _ in range(steps))
         self.decoder = mlp(latent, hidden, hidden_layers, n_out, layer_norm=False)
-        self.checkpoint_steps = False  # recompute each step in backward: less memory in training
 
-    def forward(self, nodes: torch.Tensor, edges: torch.Tensor, senders: torch.Tensor, receivers: torch.Tensor):
+    def forward(self, nodes: torch.Tensor, edges: torch.Tensor, senders: torch.Tensor, receivers: torch.Tensor,
+                recompute_steps: bool = False):
+        """recompute_steps: recompute each processor step in backward (less memory in training)."""
         v = self.node_encoder(nodes)
         e = self.edge_encoder(edges)
         for step in self.processor:
-            if self.checkpoint_steps and torch.is_grad_enabled():
+            if recompute_steps and torch.is_grad_enabled():
                 v, e = checkpoint(step, v, e, senders, receivers, use_reentrant=False)
             else:
                 v, e = step(v, e, senders, receivers)

@@ -17,7 +17,7 @@ from tqdm.auto import tqdm
 
 from runout.errors import RunFailed
 from runout.gns.schema import HISTORY, RADIUS_PER_SPACING
-from runout.gns.simulator import Simulator, movable_mask
+from runout.gns.simulator import Case, Simulator
 from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
 
@@ -51,31 +51,25 @@ def rollout(
     window = initial_positions.to(device).transpose(0, 1)  # [N, history, 2]
     particle_type = particle_type.to(device)
     material = material.to(device)
-    bounds = torch.as_tensor(bounds, dtype=window.dtype, device=device)
+    case = Case.of(particle_type, torch.as_tensor(bounds, dtype=window.dtype, device=device))
     frames = list(window.unbind(1))
     for step in tqdm(range(n_steps), disable=not progress, desc="GNS rollout", unit="step"):
         if checkpoint and torch.is_grad_enabled():
-            nxt = recompute_in_backward(_step, simulator, window, particle_type, material, bounds, use_reentrant=False)
+            nxt = recompute_in_backward(simulator.step, window, particle_type, material, case, use_reentrant=False)
         else:
-            nxt = _step(simulator, window, particle_type, material, bounds)
+            nxt = simulator.step(window, particle_type, material, case)
         frames.append(nxt)
         window = torch.cat([window[:, 1:], nxt[:, None]], dim=1)
         if (step + 1) % CHECK_EVERY == 0 or step + 1 == n_steps:
-            if _check(frames, particle_type, step, stop_speed):
+            if _check(frames, case, step, stop_speed):
                 break
     return torch.stack(frames)
 
 
-def _step(simulator, window, particle_type, material, bounds) -> torch.Tensor:
-    predicted = simulator.next_positions(window, particle_type, material, bounds)
-    predicted = torch.where(movable_mask(particle_type)[:, None], predicted, window[:, -1])
-    return torch.clamp(predicted, bounds[:, 0], bounds[:, 1])
-
-
-def _check(frames, particle_type, step, stop_speed) -> bool:
+def _check(frames, case: Case, step, stop_speed) -> bool:
     """Raise on NaN; True when the flow has stopped (one host sync per CHECK_EVERY steps)."""
     recent = torch.stack(frames[-CHECK_EVERY - 1:]).detach()
-    soil = movable_mask(particle_type)
+    soil = case.movable
     speed = (recent[1:, soil] - recent[:-1, soil]).norm(dim=-1).amax() if soil.any() else recent.new_zeros(())
     finite, fastest = bool(torch.isfinite(recent[-1]).all()), float(speed)
     if not finite:

@@ -1,8 +1,17 @@
-"""The learned simulator: features, normalisation, noise, and the position update.
+"""The learned simulator: features, normalisation, noise, the noise-corrected target, the
+loss mask and the position update, as in DeepMind's learned_simulator.
 
 Frame units throughout: positions in m, velocities v = x_t - x_{t-1} in m per frame,
 accelerations a = v_t - v_{t-1} in m per frame^2 (dt = 1 frame). The network
 (runout.gns.network) sees only normalised, dimensionless features.
+
+Training, rollout and the inverse tell one story with one Case (the domain bounds, which
+points move, the wall clamp):
+
+    case = Case.of(particle_type, bounds)
+    noisy, target = simulator.training_inputs(window, next_position, case, generator)   # train
+    loss = simulator.loss(simulator(noisy, particle_type, material, case.bounds), target, case)
+    next_position = simulator.step(window, particle_type, material, case)                # rollout
 """
 
 from __future__ import annotations
@@ -81,6 +90,28 @@ class NetworkConfig:
         return None
 
 
+@dataclass(frozen=True)
+class Case:
+    """The setup a graph batch is simulated in (LagrangeBench's case setup): the domain
+    bounds [[x_lo, x_hi], [y_lo, y_hi]] (m; [2, 2], or [N, 2, 2] per point) and the mask of
+    the points that move (not kinematic, type 3). Kinematic points keep their positions;
+    moving points are clamped into the domain (the rigid walls)."""
+
+    bounds: torch.Tensor
+    movable: torch.Tensor  # [N] bool
+
+    @classmethod
+    def of(cls, particle_type: torch.Tensor, bounds) -> "Case":
+        bounds = torch.as_tensor(bounds, device=particle_type.device)
+        return cls(bounds, particle_type != PARTICLE_TYPE_KINEMATIC)
+
+    def constrain(self, predicted: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
+        """Predicted positions [N, 2] with kinematic points held at `current` and every point
+        clamped into the domain."""
+        predicted = torch.where(self.movable[:, None], predicted, current)
+        return torch.clamp(predicted, self.bounds[:, 0], self.bounds[:, 1])
+
+
 class Simulator(nn.Module):
     """GNS: maps a window of `schema.history` positions per point to the next positions."""
 
@@ -102,14 +133,15 @@ class Simulator(nn.Module):
         self.register_buffer("acc_mean", torch.tensor(stats.acc_mean))
         self.register_buffer("acc_scale", torch.tensor(stats.acc_std).square().add(noise2).sqrt())
 
-    def forward(self, window, particle_type, material, bounds, graph=None) -> torch.Tensor:
+    def forward(self, window, particle_type, material, bounds, graph=None, recompute_steps: bool = False) -> torch.Tensor:
         """Normalised acceleration [N, 2] from window [N, history, 2] (m), particle_type [N],
         material [N, k], bounds [2, 2] or [N, 2, 2] ([[x_lo, x_hi], [y_lo, y_hi]], m) and the
-        graph index of each point [N] (None: one graph)."""
+        graph index of each point [N] (None: one graph). recompute_steps: recompute each
+        processor step in the backward pass (training with less memory)."""
         senders, receivers = radius_graph(window[:, -1], self.radius, graph)
         nodes = self.node_features(window, particle_type, material, bounds)
         edges = self.edge_features(window[:, -1], senders, receivers)
-        return self.network(nodes, edges, senders, receivers)
+        return self.network(nodes, edges, senders, receivers, recompute_steps)
 
     def node_features(self, window, particle_type, material, bounds) -> torch.Tensor:
         velocity = (window[:, 1:] - window[:, :-1] - self.vel_mean) / self.vel_scale  # [N, history-1, 2]
@@ -133,6 +165,23 @@ class Simulator(nn.Module):
         velocity = window[:, -1] - window[:, -2] + acceleration
         return window[:, -1] + velocity
 
+    def step(self, window, particle_type, material, case: Case, graph=None) -> torch.Tensor:
+        """One rollout step: the next positions [N, 2] (m), constrained by the case."""
+        return case.constrain(self.next_positions(window, particle_type, material, case.bounds, graph), window[:, -1])
+
+    def training_inputs(self, window, next_position, case: Case, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+        """(noisy window [N, history, 2] m, normalised noise-corrected target acceleration
+        [N, 2]): random-walk noise of std stats.noise_std on the moving points' inputs."""
+        noise = random_walk_noise(window, self.stats.noise_std, case.movable, generator)
+        noisy = window + noise
+        return noisy, self.normalise_acceleration(corrected_target(noisy, next_position, noise))
+
+    @staticmethod
+    def loss(predicted: torch.Tensor, target: torch.Tensor, case: Case) -> torch.Tensor:
+        """Mean squared error of the normalised accelerations over the moving points."""
+        error = (predicted.float() - target).square().sum(dim=1)
+        return (error * case.movable).sum() / case.movable.sum().clamp(min=1)
+
 
 def random_walk_noise(window: torch.Tensor, noise_std: float, movable: torch.Tensor, generator: torch.Generator):
     """Position noise [N, history, 2] (m) whose velocities are a random walk: each of the
@@ -152,7 +201,3 @@ def corrected_target(noisy_window: torch.Tensor, next_position: torch.Tensor, no
     gives x_t + noise_t + (x_{t+1} - x_t): the true next velocity from the noisy position."""
     target = next_position + noise[:, -1]
     return (target - noisy_window[:, -1]) - (noisy_window[:, -1] - noisy_window[:, -2])
-
-
-def movable_mask(particle_type: torch.Tensor) -> torch.Tensor:
-    return particle_type != PARTICLE_TYPE_KINEMATIC
