@@ -1,14 +1,5 @@
-"""`runout demo` (the work is runout.demo.run_demo): a forward GNS runout and an inverse back-calculation with the shipped model.
-
-(a) The four-layer slope (examples/four_layer_slope.toml) fails from rest under the GNS:
-    animation.gif and final.png.
-(b) The small dam (examples/small_dam.toml) collapses in the MPM (the target, cached); the
-    inverse analysis back-calculates the undrained strength c of its lower downstream shell
-    from the final deposit with the GNS: history.csv, loss.png, parameters.png, deposit.png.
-
-Scenes are filled at the model's own point spacing (its connectivity radius / 2.3), so a
-model trained at coarse cells sees graphs like those it was trained on.
-"""
+"""`runout demo`: a forward GNS runout and an inverse back-calculation with the shipped model
+(the work is runout.demo.run_demo)."""
 
 from __future__ import annotations
 

@@ -16,6 +16,7 @@ from pathlib import Path
 
 from runout.errors import InputError
 from runout.scene import MAX_STRENGTH, Scene, load_scene
+from runout.scene.files import check_keys
 
 INPUT_FRAMES = 6  # a rollout is seeded with 6 position frames
 
@@ -132,7 +133,7 @@ def problem_digest(data: dict) -> str:
 
 
 def spec_from_dict(data: dict, source: Path, digest: str = "") -> InverseSpec:
-    _check_keys(data, _TOP_KEYS, "top level", source)
+    check_keys(data, _TOP_KEYS, "top level", source)
     if "scene" not in data or not isinstance(data["scene"], str):
         raise InputError(f"{source}: 'scene' must name a scene file, e.g. scene = \"dam.toml\".")
     scene = load_scene(_relative(source, data["scene"]))
@@ -154,16 +155,6 @@ def _relative(source: Path, name: str) -> Path:
     """Paths in a spec are relative to the spec file's folder."""
     p = Path(name).expanduser()
     return p if p.is_absolute() else source.parent / p
-
-
-def _check_keys(table, allowed: set[str], where: str, source: Path) -> None:
-    if not isinstance(table, dict):
-        raise InputError(f"{source}: [{where}] must be a table of keys.")
-    unknown = sorted(set(table) - allowed)
-    if unknown:
-        raise InputError(
-            f"{source}: unknown key '{unknown[0]}' in [{where}]; allowed keys are {', '.join(sorted(allowed))}."
-        )
 
 
 def _number(table: dict, key: str, where: str, source: Path) -> float:
@@ -196,7 +187,7 @@ def _parameters(table, scene: Scene, source: Path):
     fixed: dict[str, dict[str, float]] = {}
     free: list[FreeParameter] = []
     for material, props in table.items():
-        _check_keys(props, set(PROPERTIES), f"parameters.{material}", source)
+        check_keys(props, set(PROPERTIES), f"parameters.{material}", source)
         for prop, entry in props.items():
             where = f"parameters.{material}.{prop}"
             if isinstance(entry, dict) and "fixed" in entry:
@@ -211,14 +202,14 @@ def _parameters(table, scene: Scene, source: Path):
 
 
 def _fixed(entry: dict, prop: str, where: str, source: Path) -> float:
-    _check_keys(entry, {"fixed"}, where, source)
+    check_keys(entry, {"fixed"}, where, source)
     value = _number(entry, "fixed", where, source)
     _check_allowed(value, prop, where + ".fixed", source)
     return value
 
 
 def _free(entry, material: str, prop: str, where: str, source: Path) -> FreeParameter:
-    _check_keys(entry, _FREE_KEYS, where, source)
+    check_keys(entry, _FREE_KEYS, where, source)
     for key in ("lower", "upper"):
         if key not in entry:
             raise InputError(f"{source}: {where} needs either 'fixed' or both 'lower' and 'upper'.")
@@ -263,7 +254,7 @@ def _check_deformable(scene: Scene, p: "FreeParameter", source: Path) -> None:
 def _target(table, source: Path) -> TargetSpec:
     if table is None:
         raise InputError(f"{source}: the spec has no [target] section.")
-    _check_keys(table, _TARGET_KEYS, "target", source)
+    check_keys(table, _TARGET_KEYS, "target", source)
     given = [k for k in ("trajectory", "positions") if k in table]
     if len(given) != 1:
         raise InputError(f"{source}: [target] must give exactly one of 'trajectory' or 'positions'.")
@@ -295,7 +286,7 @@ def _frames(value, source: Path) -> tuple[int, ...] | None:
 
 
 def _loss(table, source: Path) -> LossSpec:
-    _check_keys(table, _LOSS_KEYS, "loss", source)
+    check_keys(table, _LOSS_KEYS, "loss", source)
     weighting = table.get("weighting", "uniform")
     if weighting not in WEIGHTINGS:
         raise InputError(f"{source}: loss.weighting = {weighting!r} must be one of {', '.join(WEIGHTINGS)}.")
@@ -309,7 +300,7 @@ def _loss(table, source: Path) -> LossSpec:
 
 
 def _optimiser(table, source: Path) -> OptimiserSpec:
-    _check_keys(table, _OPTIMISER_KEYS, "optimiser", source)
+    check_keys(table, _OPTIMISER_KEYS, "optimiser", source)
     d = OptimiserSpec()
     tols = {}
     for key in ("ftol", "gtol"):
@@ -326,5 +317,5 @@ def _optimiser(table, source: Path) -> OptimiserSpec:
 
 
 def _rollout_steps(table, source: Path) -> int | None:
-    _check_keys(table, _ROLLOUT_KEYS, "rollout", source)
+    check_keys(table, _ROLLOUT_KEYS, "rollout", source)
     return _whole(table, "steps", "rollout", source, 1) if "steps" in table else None

@@ -27,7 +27,8 @@ _REGION_KEYS = {"material", "polygon", "velocity", "fixed"}
 _TOP_KEYS = {"domain", "time", "materials", "regions", "name"}
 
 
-def _check_keys(table: dict, allowed: set[str], where: str, source: str) -> None:
+def check_keys(table, allowed: set[str], where: str, source) -> None:
+    """InputError unless `table` is a table whose keys are all in `allowed` (scene and spec files)."""
     if not isinstance(table, dict):
         raise InputError(f"{source}: [{where}] must be a table of keys.")
     unknown = sorted(set(table) - allowed)
@@ -51,13 +52,13 @@ def _number(table: dict, key: str, where: str, source: str, default=None) -> flo
 
 def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     """Build and validate a Scene from the dictionary form of a scene file."""
-    _check_keys(data, _TOP_KEYS, "top level", source)
+    check_keys(data, _TOP_KEYS, "top level", source)
     for required in ("domain", "materials", "regions"):
         if required not in data:
             raise InputError(f"{source}: the scene has no [{required}] section.")
 
     d = data["domain"]
-    _check_keys(d, _DOMAIN_KEYS, "domain", source)
+    check_keys(d, _DOMAIN_KEYS, "domain", source)
     ppc = d.get("points_per_cell", Domain.points_per_cell)
     if isinstance(ppc, bool) or not isinstance(ppc, int):
         raise InputError(f"{source}: domain.points_per_cell = {ppc!r} must be a whole number in [1, 6].")
@@ -71,7 +72,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     )
 
     t = data.get("time", {})
-    _check_keys(t, _TIME_KEYS, "time", source)
+    check_keys(t, _TIME_KEYS, "time", source)
     frames = t.get("frames", TimeSpec.frames)
     if isinstance(frames, bool) or not isinstance(frames, int):
         raise InputError(f"{source}: time.frames = {frames!r} must be a positive whole number.")
@@ -89,7 +90,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     materials = {}
     for name, m in mats_in.items():
         where = f"materials.{name}"
-        _check_keys(m, _MATERIAL_KEYS, where, source)
+        check_keys(m, _MATERIAL_KEYS, where, source)
         model = m.get("model", Material.model)
         if model not in ("mohr-coulomb", "elastic"):
             raise InputError(f"{source}: {where}.model = {model!r} must be 'mohr-coulomb' or 'elastic'.")
@@ -112,7 +113,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     regions = []
     for k, r in enumerate(regions_in):
         where = f"regions[{k}]"
-        _check_keys(r, _REGION_KEYS, where, source)
+        check_keys(r, _REGION_KEYS, where, source)
         if "material" not in r:
             raise InputError(f"{source}: {where} is missing the required key 'material'.")
         if "polygon" not in r:
