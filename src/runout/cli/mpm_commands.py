@@ -9,7 +9,6 @@ import typer
 from runout.cli.app import app
 
 FORCE = typer.Option(False, "--force", help="Replace another command's results in --out (removing what this run does not rewrite).")
-MPM_FILES = ("trajectory.npz", "metadata.json", "initial.png", "final.png")
 
 
 @app.command()
@@ -25,35 +24,9 @@ def mpm(
 ) -> None:
     """Run the MPM on a scene: writes trajectory.npz + metadata.json (GNS layout, material
     features [tan phi, c/100 kPa]), initial.png, final.png and animation.gif."""
-    from runout.errors import RunFailed
-    from runout.mpm import simulate
-    from runout.mpm.budget import check_budget
-    from runout.outputs import check_folder, claim
-    from runout.plots import save_animation, save_frame
-    from runout.scene import load_scene
-    from runout.trajectory import save_trajectory
+    from runout.mpm.run import run_mpm
 
-    sc = load_scene(scene)
-    if frames is not None:
-        sc = sc.with_frames(frames)
-    writes = MPM_FILES + (("animation.gif",) if animate else ()) + (("vtk",) if vtk else ())
-    folder = check_folder(out, "mpm", writes, force=force)
-    check_budget([sc], device=device, source=str(scene))
-    traj = simulate([sc], device=device, compile=compile)[0]
-    bad = traj.first_nonfinite_frame()
-    if bad is not None:
-        raise RunFailed(f"the MPM run of {scene} diverged (positions are not finite from frame {bad}); "
-                        "lower time.cfl or check the materials.")
-    claim(folder)
-    save_trajectory(traj, out)
-    save_frame(traj, 0, out / "initial.png")
-    save_frame(traj, traj.n_frames - 1, out / "final.png")
-    if animate:
-        save_animation([traj], out / "animation.gif", labels=["MPM"])
-    if vtk:
-        from runout.vtk import write_vtk
-
-        write_vtk(traj, out / "vtk")
+    traj, writes = run_mpm(scene, out, frames, device, animate, vtk, compile, force)
     info = traj.info
     typer.echo(
         f"{traj.n_points} points, {traj.n_frames} frames, {info['substeps_per_frame']} substeps/frame, "
