@@ -19,7 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from runout.scene import Domain, Material, Region, Scene, TimeSpec, polygon_area, polygon_self_intersects
+from runout.errors import InputError
+from runout.outputs import check_folder, check_picture, claim
+from runout.plots.families import draw_grid
+from runout.scene import Domain, Material, Region, Scene, TimeSpec, polygon_area, polygon_self_intersects, save_scene
 
 DOMAIN_HEIGHT = 152.0  # m, both stages
 GROUND_TOP = 4.0  # m, top of the fixed ground strip under the layered slopes (b, c)
@@ -358,43 +361,29 @@ def _column(stage: Stage, rng):
     return v, [_region([(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)])], []
 
 
-# ----------------------------------------------------------------------------- pictures
-
-
-def draw_grid(samples: list[FamilySample], path: str | Path, columns: int = 4) -> Path:
-    """Draw scenes in a grid (fixed regions grey, each soil material its own colour, block
-    velocities as arrows) and save the picture to `path`."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from matplotlib.patches import Polygon
-
-    rows = -(-len(samples) // columns)
-    fig, axes = plt.subplots(rows, columns, figsize=(4.2 * columns, 2.6 * rows), squeeze=False)
-    colours = plt.get_cmap("tab10").colors
-    for ax, s in zip(axes.ravel(), samples):
-        d = s.scene.domain
-        names = s.scene.material_names
-        for r in s.scene.regions:
-            colour = "0.6" if r.fixed else colours[names.index(r.material) % 10]
-            ax.add_patch(Polygon(r.polygon, closed=True, facecolor=colour, edgecolor="k", linewidth=0.5))
-            if r.velocity != (0.0, 0.0):
-                cx, cy = np.mean(r.polygon, axis=0)
-                ax.annotate("", (cx + 2 * r.velocity[0], cy + 2 * r.velocity[1]), (cx, cy),
-                            arrowprops={"arrowstyle": "->", "color": "k"})
-        soils = [m for m in s.scene.materials.values() if m.model != "elastic"]
-        label = ", ".join(f"{m.friction_angle:.0f}°/{m.cohesion:.0f}" for m in soils)
-        ax.set_title(f"{s.scene.name} ({s.family}): φ/c {label}", fontsize=7)
-        ax.set_xlim(0, d.width)
-        ax.set_ylim(0, d.height)
-        ax.set_aspect("equal")
-        ax.tick_params(labelsize=6)
-    for ax in axes.ravel()[len(samples):]:
-        ax.axis("off")
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+def draw_family(
+    family: str, out: Path, count: int = 12, stage: str | None = None, seed: int = 0,
+    scenes: Path | None = None, force: bool = False,
+) -> None:
+    """Draw `count` random scenes of a family (stage: base, or finetune for columns) into the
+    picture OUT, and write each as TOML into SCENES when given (`runout families`)."""
+    if family not in FAMILIES:
+        raise InputError(f"--family {family!r} must be one of {', '.join(FAMILIES)}.")
+    stage = stage or ("finetune" if family == "column" else "base")
+    if stage not in STAGES:
+        raise InputError(f"--stage {stage!r} must be one of {', '.join(STAGES)}.")
+    if family not in STAGES[stage].mix:
+        raise InputError(f"--family {family} is not part of the {stage} stage (it has {', '.join(STAGES[stage].mix)}).")
+    if not 1 <= count <= 200:
+        raise InputError(f"--count {count} is outside the allowed range [1, 200].")
+    check_picture(out)
+    names = [f"{family}_{k:03d}" for k in range(count)]
+    folder = check_folder(scenes, "families", [f"{n}.toml" for n in names], force=force, option="--scenes") if scenes else None
+    rng = np.random.default_rng([seed, STAGES[stage].stage_id, FAMILIES.index(family)])
+    samples = [sample(STAGES[stage], family, rng, name=name) for name in names]
+    out.parent.mkdir(parents=True, exist_ok=True)
+    draw_grid(samples, out)
+    if folder is not None:
+        claim(folder)
+        for s in samples:
+            save_scene(s.scene, scenes / f"{s.scene.name}.toml")

@@ -24,33 +24,9 @@ def families(
     force: bool = typer.Option(False, "--force", help="Replace another command's results in --scenes."),
 ) -> None:
     """Draw a grid of random scenes of one family (paper Table A.1), to look at before generating."""
-    import numpy as np
+    from runout.families import draw_family
 
-    from runout.errors import InputError
-    from runout.families import FAMILIES, STAGES, draw_grid, sample
-    from runout.outputs import check_folder, check_picture, claim
-    from runout.scene import save_scene
-
-    if family not in FAMILIES:
-        raise InputError(f"--family {family!r} must be one of {', '.join(FAMILIES)}.")
-    stage = stage or ("finetune" if family == "column" else "base")
-    if stage not in STAGES:
-        raise InputError(f"--stage {stage!r} must be one of {', '.join(STAGES)}.")
-    if family not in STAGES[stage].mix:
-        raise InputError(f"--family {family} is not part of the {stage} stage (it has {', '.join(STAGES[stage].mix)}).")
-    if not 1 <= count <= 200:
-        raise InputError(f"--count {count} is outside the allowed range [1, 200].")
-    check_picture(out)
-    names = [f"{family}_{k:03d}" for k in range(count)]
-    folder = check_folder(scenes, "families", [f"{n}.toml" for n in names], force=force, option="--scenes") if scenes else None
-    rng = np.random.default_rng([seed, STAGES[stage].stage_id, FAMILIES.index(family)])
-    samples = [sample(STAGES[stage], family, rng, name=name) for name in names]
-    out.parent.mkdir(parents=True, exist_ok=True)
-    draw_grid(samples, out)
-    if folder is not None:
-        claim(folder)
-        for s in samples:
-            save_scene(s.scene, scenes / f"{s.scene.name}.toml")
+    draw_family(family, out, count, stage, seed, scenes, force)
     typer.echo(f"wrote {out}" + (f" and {count} scene files in {scenes}" if scenes else ""))
 
 

@@ -2,6 +2,7 @@
 
     runout.plots.frames     draw_materials, draw_displacement, save_frame, draw_scene
     runout.plots.rollout    draw_points, save_snapshots, save_error_plot (GNS rollouts)
+    runout.plots.families   draw_grid (random scene families)
     runout.plots.animation  write_animation (the one writer: .mp4 or .gif), save_animation,
                             save_rollout_animation, animation_name
 
