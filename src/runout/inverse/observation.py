@@ -28,10 +28,15 @@ class Observation:
     material_id: np.ndarray  # [N] index into spec.scene.material_names
     true_values: list[float] | None  # free parameters that made the target, when known
 
+    @property
+    def moving(self) -> np.ndarray:
+        """[N] bool: the points that move (not kinematic)."""
+        return self.particle_type != PARTICLE_TYPE_KINEMATIC
+
     def weights(self, loss: LossSpec) -> np.ndarray:
         """[N] loss weight per point: 0 on kinematic points, else 1 (uniform) or
         1 + front_weight * displacement / largest displacement (toward the runout front)."""
-        moving = (self.particle_type != PARTICLE_TYPE_KINEMATIC).astype(float)
+        moving = self.moving.astype(float)
         if loss.weighting == "uniform":
             return moving
         moved = np.linalg.norm(self.positions[-1] - self.initial, axis=1) * moving  # m

@@ -12,7 +12,6 @@ from runout.errors import InputError
 from runout.inverse.figures import (
     check_iterations, default_iterations, draw_deposits, draw_loss, draw_parameters, draw_starts, pick_iterations,
 )
-from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.inverse.history import RunInfo
 from runout.inverse.memory import PeakMemory
 from runout.inverse.observation import Observation, load_observation
@@ -115,8 +114,7 @@ def _draw(result: StartResult, observation: Observation, chosen, warn: Log | Non
     if missed and warn is not None:
         warn(f"--plot-iterations {', '.join(map(str, missed))} not drawn, because the run stopped after iteration {available[-1]}.")
     iterations = iterations or default_iterations(available)
-    moving = observation.particle_type != PARTICLE_TYPE_KINEMATIC
-    draw_deposits(history, observation.positions[-1], observation.material_id, moving, iterations,
+    draw_deposits(history, observation.positions[-1], observation.material_id, observation.moving, iterations,
                   result.out_dir / "deposit.png")
 
 
