@@ -61,19 +61,9 @@ def column(simulator, scene_path: Path, frames: int, out: Path) -> dict:
 
 
 def _draw(truth, predicted, path: Path) -> None:
-    import matplotlib
+    from runout.plots import save_comparison
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from runout.plots import draw_materials
-
-    fig, axes = plt.subplots(2, 1, figsize=(10, 5))
-    draw_materials(axes[0], truth, truth.n_frames - 1, title="MPM, last frame")
-    draw_materials(axes[1], predicted, predicted.n_frames - 1, title="GNS, last frame", legend=False)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_comparison(truth, predicted, path, (truth.n_frames - 1, predicted.n_frames - 1), ("MPM, last frame", "GNS, last frame"))
 
 
 def main() -> None:

@@ -246,19 +246,9 @@ def evaluate(model: Path, args: argparse.Namespace, meta: dict) -> dict:
 
 
 def _draw_final(predicted, truth, frame: int, path: Path) -> None:
-    import matplotlib
+    from runout.plots import save_comparison
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from runout.plots import draw_materials
-
-    fig, axes = plt.subplots(2, 1, figsize=(10, 8))
-    draw_materials(axes[0], truth, frame, title=f"MPM, frame {frame}")
-    draw_materials(axes[1], predicted, frame, title=f"GNS, frame {frame}", legend=False)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
+    save_comparison(truth, predicted, path, (frame, frame), (f"MPM, frame {frame}", f"GNS, frame {frame}"), height=8.0)
 
 
 # ----------------------------------------------------------------------------- session

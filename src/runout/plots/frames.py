@@ -94,6 +94,20 @@ def save_frame(traj: Trajectory, frame: int, path: str | Path, title: str | None
     return path
 
 
+def save_comparison(
+    truth: Trajectory, predicted: Trajectory, path: str | Path, frames: tuple[int, int], titles: tuple[str, str],
+    height: float = 5.0,
+) -> Path:
+    """The truth (MPM) above the prediction (GNS) at the given frames, coloured by material."""
+    fig = Figure(figsize=(10, height))
+    axes = fig.subplots(2, 1)
+    draw_materials(axes[0], truth, frames[0], title=titles[0])
+    draw_materials(axes[1], predicted, frames[1], title=titles[1], legend=False)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    return Path(path)
+
+
 def draw_scene(scene: Scene, path: str | Path) -> Path:
     """The scene's regions as filled polygons (no simulation)."""
     path = Path(path)
