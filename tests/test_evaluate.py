@@ -7,7 +7,7 @@ import pytest
 import torch
 from typer.testing import CliRunner
 
-import runout.evaluate.mpm_cache as mpm_cache
+import runout.mpm.cache as mpm_cache
 from runout.cli import app
 from runout.errors import InputError
 from runout.evaluate import ColumnCase, MpmCache, column_scene, scene_key

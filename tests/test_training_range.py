@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 import torch
 
-from runout.evaluate.mpm_cache import MpmCache, scene_key
 from runout.gns.checkpoint import load_simulator, read_checkpoint
 from runout.gns.rollout import scene_at_rest
 from runout.gns.training_range import bound_warnings, range_warnings
+from runout.mpm.cache import MpmCache, scene_key
 from runout.scene import save_scene, scene_from_dict
 from test_cli_exits import TINY, run
 from test_gns_synthetic import write_dataset

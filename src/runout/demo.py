@@ -19,11 +19,11 @@ from dataclasses import replace
 from pathlib import Path
 
 from runout.errors import InputError
-from runout.evaluate.mpm_cache import MpmCache
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import at_model_spacing, rollout_trajectory, scene_at_rest
 from runout.inverse import invert, summary_lines
 from runout.metrics import runout_extent
+from runout.mpm.cache import MpmCache
 from runout.outputs import prepare_folder
 from runout.plots import save_animation, save_frame
 from runout.scene import load_scene, save_scene

@@ -12,8 +12,8 @@ import typer
 
 from runout.cli.app import app
 from runout.errors import InputError
-from runout.evaluate.mpm_cache import DEFAULT_CACHE
 from runout.evaluate.scenes import EXAMPLES
+from runout.mpm.cache import DEFAULT_CACHE
 
 evaluate_app = typer.Typer(
     help="Measure a GNS model against the MPM: the paper's column, slope, diagnostics, inverse and data-size studies.",

@@ -5,7 +5,7 @@
     write_report("out/eval", "docs/results.md")
 
 Every study writes OUT/<study>/summary.json (with the model's card), a CSV where there is a
-table of cases, and its figures; MPM runs are cached on disk by scene (mpm_cache.py).
+table of cases, and its figures; MPM runs are cached on disk by scene (runout.mpm.cache).
 See docs/evaluation.md.
 """
 
@@ -13,11 +13,11 @@ from runout.evaluate.columns import ColumnGrid, run_columns
 from runout.evaluate.diagnostics import PAPER_CASE, run_diagnostics
 from runout.evaluate.engines import EngineRun
 from runout.evaluate.inverse_study import run_inverse
-from runout.evaluate.mpm_cache import DEFAULT_CACHE, MpmCache, scene_key
 from runout.evaluate.report import write_report
 from runout.evaluate.scenes import ColumnCase, column_scene, scaled
 from runout.evaluate.sensitivity import SensitivityConfig, run_sensitivity
 from runout.evaluate.slope import run_slope
+from runout.mpm.cache import DEFAULT_CACHE, MpmCache, scene_key
 
 __all__ = [
     "DEFAULT_CACHE", "PAPER_CASE", "ColumnCase", "ColumnGrid", "EngineRun", "MpmCache", "SensitivityConfig",

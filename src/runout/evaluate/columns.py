@@ -27,11 +27,11 @@ from tqdm.auto import tqdm
 from runout.evaluate.column_figures import draw_error_heatmaps, draw_evolution, draw_runout_comparison
 from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
-from runout.evaluate.mpm_cache import MpmCache
 from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_scene
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
 from runout.metrics import absolute_percentage_error, coefficient_of_variation, normalised_runout, r_squared, runout_front
+from runout.mpm.cache import MpmCache
 from runout.trajectory import Trajectory, load_trajectory, save_trajectory
 
 PAPER_ASPECTS = (0.5, 1.0, 2.0)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from runout.evaluate.mpm_cache import MpmCache
+from runout.mpm.cache import MpmCache
 
 
 @dataclass
