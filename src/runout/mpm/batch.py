@@ -113,7 +113,8 @@ def build_batch(scenes: list[Scene], device: torch.device, dtype: torch.dtype) -
         spacing = scenes[0].domain.point_spacing
         full = float(np.max(np.concatenate(fmass))) / spacing**2 * dx**2
         surface, normal, grid.stuck = fixed_ground_contact(
-            t(np.concatenate(fmass), dtype), ids, w, size, full, shapes, offsets
+            t(np.concatenate(fmass), dtype), ids, w, size, full, shapes, offsets,
+            [_ground_edges(s) for s in scenes], dx,
         )
         mu = torch.as_tensor(
             [scenes[k].domain.base_friction for k in np.searchsorted(offsets, surface.cpu().numpy(), "right") - 1],
@@ -141,6 +142,33 @@ def build_batch(scenes: list[Scene], device: torch.device, dtype: torch.dtype) -
     n_sub = substeps_per_frame(scenes[0])
     time = scenes[0].time
     return Batch(scenes, grid, pts, n_sub, time.frame_dt / n_sub, time.flip, time.damping, moving_index, fixed_xy, order)
+
+
+def _ground_edges(scene: Scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Exposed edges of the scene's fixed polygons: (a [E, 2], b [E, 2], outward normal [E, 2]),
+    m. An edge is exposed unless it lies on a wall or another fixed polygon lies just beyond it."""
+    from runout.scene import points_in_polygon
+
+    fixed = [np.asarray(r.polygon, dtype=float) for r in scene.regions if r.fixed]
+    w, h = scene.domain.width, scene.domain.height
+    tol = 1e-6 * max(w, h)
+    out_a, out_b, out_n = [], [], []
+    for k, poly in enumerate(fixed):
+        x, y = poly[:, 0], poly[:, 1]
+        orient = 1.0 if np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y) > 0 else -1.0  # CCW: +1
+        for p, q in zip(poly, np.roll(poly, -1, axis=0)):
+            d = q - p
+            length = float(np.hypot(*d))
+            if length <= tol:
+                continue
+            n = orient * np.array([d[1], -d[0]]) / length
+            on_wall = any(abs(p[i] - v) < tol and abs(q[i] - v) < tol for i, v in ((0, 0.0), (0, w), (1, 0.0), (1, h)))
+            probe = (0.5 * (p + q) + 1e-3 * max(w, h) * n)[None]
+            shared = any(points_in_polygon(probe, other)[0] for j, other in enumerate(fixed) if j != k)
+            if not on_wall and not shared:
+                out_a.append(p), out_b.append(q), out_n.append(n)
+    empty = np.zeros((0, 2))
+    return tuple(np.array(v) if v else empty for v in (out_a, out_b, out_n))
 
 
 def _wall_constraints(scenes, shapes, offsets) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
