@@ -6,7 +6,7 @@ the dataclasses in runout.scene.model use the same numbers.
 
 from __future__ import annotations
 
-GRAVITY = 9.81  # m/s^2, downwards (-y); the MPM's runout.mpm.geostatic.GRAVITY equals it (tested)
+GRAVITY = 9.81  # m/s^2, downwards (-y); the MPM imports it from here
 
 # Particle types of the GNS format (geoelements/gns).
 PARTICLE_TYPE_KINEMATIC = 3  # stationary points (ground, foundation): positions prescribed

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from runout.mpm.geostatic import initial_stress, vertical_stress
+from runout.mpm.geostatic import GRAVITY, initial_stress, vertical_stress
 from runout.mpm.mohr_coulomb import MaterialArrays, return_map
 from runout.mpm.solver import (
     PAD, Constraint, Grid, Points, energies, fixed_ground_contact, node_offsets, p_wave_speed,
@@ -19,7 +19,6 @@ from runout.mpm.solver import (
 from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
 
-GRAVITY = 9.81
 RELAX_CFL = 1.5  # relaxation step as a share of the scene CFL step on the wave speed alone
 RELAX_PERIODS = 3.0  # length of the geostatic relaxation in periods of the slowest mode
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-GRAVITY = 9.81  # m/s^2
+from runout.defaults import GRAVITY  # noqa: F401  (m/s^2; solver and batch import it from here)
 
 
 def vertical_stress(
