@@ -65,6 +65,17 @@ def elastic_trial(stress: torch.Tensor, strain: torch.Tensor, mat: MaterialArray
     )
 
 
+def _radius(d: torch.Tensor, sxy: torch.Tensor) -> torch.Tensor:
+    """Mohr-circle radius sqrt(d^2 + sxy^2). Under autograd (runout.mpm.differentiable) an
+    isotropic state (radius 0, where sqrt has an infinite slope) gets a zero gradient instead
+    of NaN, with the same values (the double-where trick); the default path is untouched."""
+    r2 = d * d + sxy * sxy
+    if not r2.requires_grad:
+        return torch.sqrt(r2)
+    round_ = r2 > 0
+    return torch.where(round_, torch.sqrt(torch.where(round_, r2, torch.ones_like(r2))), torch.zeros_like(r2))
+
+
 def return_map(stress: torch.Tensor, mat: MaterialArrays) -> torch.Tensor:
     """Project the trial stress onto the Mohr-Coulomb (psi = 0) / tension cut-off surface.
 
@@ -83,7 +94,7 @@ def return_map(stress: torch.Tensor, mat: MaterialArrays) -> torch.Tensor:
     sxx, syy, sxy, szz = stress.unbind(1)
     s = 0.5 * (sxx + syy)
     d = 0.5 * (sxx - syy)
-    t = torch.sqrt(d * d + sxy * sxy)
+    t = _radius(d, sxy)
     s1, s3 = s + t, s - t
     sin, cut, lam, g, k = mat.sin_phi, mat.tension, mat.lam, mat.shear, mat.k
     t_a = mat.c_cos - s * sin  # yield radius at this s

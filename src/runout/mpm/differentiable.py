@@ -1,0 +1,132 @@
+"""The MPM as a differentiable function of the per-material strengths phi and c.
+
+    model = DifferentiableMpm(scene, frames=[10, 20])
+    positions = model(phi_deg, c_kpa)  # [F, N, 2] m, every point in output order
+
+Reverse-mode AD runs through the whole MPM: the K0 start (K0 = 1 - sin phi unless a material
+gives k0), the geostatic relaxation (elastic-plastic, points held), every substep's Jaumann
+trial, Mohr-Coulomb return and tension cut-off (T = min(T_given, c / tan phi)), and the frame
+outputs. The batch is built once from the scene: the substep count, the relaxation length and
+the grid follow from stiffness, density and geometry, never from phi or c, so they stay fixed
+while an optimiser moves the strengths.
+
+Memory stays bounded (torch.utils.checkpoint, non-reentrant): the forward keeps only the state
+(x, v, C, stress, volume: 13 numbers per point) at each output frame and at each relaxation
+substep, and the backward pass recomputes one frame's substeps at a time. So the memory grows
+by about 100 bytes per point per frame instead of by every substep's temporaries.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+import torch
+from torch.utils.checkpoint import checkpoint
+
+from runout.mpm.batch import build_batch, relax_geostatic
+from runout.mpm.mohr_coulomb import MaterialArrays
+from runout.mpm.solver import Points, substep
+from runout.scene import Scene
+
+_STATE = ("x", "v", "C", "stress", "volume")
+
+
+class DifferentiableMpm:
+    """One scene's MPM run: (phi [M] degrees, c [M] kPa) -> positions [F, N, 2] m at `frames`.
+
+    M follows scene.material_names; frames are output-frame indices (0 = start), increasing."""
+
+    def __init__(self, scene: Scene, frames, device: str | torch.device = "cpu", dtype: torch.dtype = torch.float64,
+                 checkpoint: bool = True):
+        self.scene = scene
+        self.checkpoint = checkpoint  # False: autograd keeps every substep (memory grows with them)
+        self.frames = [int(f) for f in frames]
+        self.batch = build_batch([scene], torch.device(device), dtype)
+        pts = self.batch.pts
+        moving, _, material_id = self.batch.order[0]
+        self.material_id = torch.as_tensor(material_id[moving], device=pts.x.device)  # per moving point
+        mats = [scene.materials[n] for n in scene.material_names]
+        opt = dict(dtype=dtype, device=pts.x.device)
+        self.tension_given = torch.tensor([m.tension_cutoff * 1e3 for m in mats], **opt)  # Pa
+        self.k0_given = torch.tensor(
+            [m.poisson_ratio / (1 - m.poisson_ratio) if m.model == "elastic" else (m.k0 if m.k0 is not None else math.nan)
+             for m in mats], **opt,
+        )  # NaN: K0 = 1 - sin phi, follows phi
+        self.sigma_v = -pts.stress[:, 1].clone()  # Pa, overburden of the K0 start
+        self.moving_index = torch.as_tensor(self.batch.moving_index[0], device=pts.x.device)
+        self.template = torch.zeros(len(moving), 2, **opt)
+        self.template[torch.as_tensor(~moving)] = torch.as_tensor(self.batch.fixed_xy[0], **opt)
+        self.start = {name: getattr(pts, name).clone() for name in _STATE}
+
+    @property
+    def substeps_per_frame(self) -> int:
+        return self.batch.n_sub
+
+    def materials(self, phi: torch.Tensor, c: torch.Tensor) -> MaterialArrays:
+        """Per-point constants from per-material phi (degrees) and c (kPa); differentiable."""
+        base = self.batch.pts.mat
+        rad = torch.deg2rad(phi)
+        tan_safe = torch.tan(torch.where(rad > 0, rad, torch.ones_like(rad)))
+        cut = torch.where(rad > 0, torch.minimum(self.tension_given, c * 1e3 / tan_safe), self.tension_given)
+        m = self.material_id
+        return MaterialArrays(
+            lam=base.lam, shear=base.shear, sin_phi=torch.sin(rad)[m], cos_phi=torch.cos(rad)[m],
+            cohesion=(c * 1e3)[m], tension=cut[m], plastic=base.plastic,
+        )
+
+    def initial_points(self, phi: torch.Tensor, mat: MaterialArrays) -> Points:
+        """The K0 start (compression negative, Pa) with these materials, before relaxation."""
+        k0 = torch.where(torch.isnan(self.k0_given), 1 - torch.sin(torch.deg2rad(phi)), self.k0_given)[self.material_id]
+        sv = self.sigma_v
+        stress = torch.stack((-k0 * sv, -sv, torch.zeros_like(sv), -k0 * sv), dim=1)
+        start = {name: t.clone() for name, t in self.start.items()}
+        return replace(self.batch.pts, mat=mat, **{**start, "stress": stress})
+
+    def __call__(self, phi: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
+        """Positions [F, N, 2] (m) at the frames, differentiable w.r.t. phi [M] and c [M]."""
+        mat = self.materials(phi, c)
+        pts = self.initial_points(phi, mat)
+        batch = replace(self.batch, pts=pts)
+        if len(pts.x):
+            relax_geostatic(batch, step=_checkpointed_substep if self.checkpoint else substep)
+        wanted = set(self.frames)
+        out = {0: pts.x} if 0 in wanted else {}
+        for frame in range(1, self.frames[-1] + 1):
+            _advance(pts, batch.grid, batch.dt, batch.flip, batch.damping, batch.n_sub, self.checkpoint)
+            if frame in wanted:
+                out[frame] = pts.x
+        return torch.stack([self._all_points(out[f]) for f in self.frames])
+
+    def _all_points(self, x: torch.Tensor) -> torch.Tensor:
+        return self.template.index_put((self.moving_index,), x)
+
+
+def _advance(pts: Points, grid, dt: float, flip: float, damping: float, n: int, keep_start_only: bool = True) -> None:
+    """n substeps of pts in place, recomputed in the backward pass (only their start is kept)."""
+
+    def run(*state):
+        p = replace(pts, **dict(zip(_STATE, state)))
+        for _ in range(n):
+            substep(p, grid, dt, flip, damping)
+        return tuple(getattr(p, name) for name in _STATE)
+
+    state = tuple(getattr(pts, name) for name in _STATE)
+    if keep_start_only and torch.is_grad_enabled():
+        state = checkpoint(run, *state, use_reentrant=False)
+    else:
+        state = run(*state)
+    for name, value in zip(_STATE, state):
+        setattr(pts, name, value)
+
+
+def _checkpointed_substep(pts: Points, grid, dt: float, flip: float = 0.0, damping: float = 0.0) -> None:
+    """relax_geostatic's step, kept only by its start state."""
+    _advance(pts, grid, dt, flip, damping, 1)
+
+
+def material_values(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(phi [M] degrees, c [M] kPa) of the scene's materials in material_names order."""
+    mats = [scene.materials[n] for n in scene.material_names]
+    return np.array([m.friction_angle for m in mats]), np.array([m.cohesion for m in mats])
