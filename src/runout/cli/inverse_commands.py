@@ -16,7 +16,7 @@ def invert(
     out: Path = typer.Option(..., "--out", help="Output folder; a run killed part-way resumes from it."),
     device: str = typer.Option("cpu", help="cpu or cuda."),
     starts: int = typer.Option(1, help="Starting points: the spec's initial values, then a Latin hypercube (seed 0)."),
-    engine: str = typer.Option("gns", help="gns (autodiff through the GNS rollout) or mpm-fd (MPM runs, central differences)."),
+    engine: str = typer.Option("gns", help="gns (autodiff through the GNS rollout), mpm-fd (MPM runs, central differences) or mpm-ad (autodiff through the MPM)."),
     fd_step: float = typer.Option(0.01, help="mpm-fd: finite-difference step as a fraction of each parameter's bounds."),
     checkpoint: bool = typer.Option(True, help="Recompute each rollout step in the backward pass (much less memory)."),
     plot_iterations: str = typer.Option(None, help="Iterations to draw in deposit.png, e.g. '0,1,last' (default: first, second, middle, last)."),

@@ -118,7 +118,7 @@ class RecordedObjective:
 def _describe(r: Record, free: tuple[FreeParameter, ...]) -> str:
     values = ", ".join(f"{p.name} = {v:.4g} {p.unit}" for p, v in zip(free, r.values))
     return (f"evaluation {r.evaluation}: loss {r.loss:.4g} m^2 at {values} "
-            f"(forward {r.forward_s:.2f} s, backward {r.backward_s:.2f} s)")
+            f"(forward {r.forward_s:.2f} s, backward {r.backward_s:.2f} s, {r.peak_memory_bytes / 1e6:.1f} MB held)")
 
 
 def _save_atomic(path: Path, array: np.ndarray) -> None:

@@ -19,7 +19,7 @@ from runout.inverse.optimise import Log, StartResult, run_starts, spread
 from runout.inverse.spec import InverseSpec, load_inverse_spec
 from runout.outputs import check_folder, claim
 
-ENGINES = ("gns", "mpm-fd")
+ENGINES = ("gns", "mpm-fd", "mpm-ad")
 MAX_STARTS = 100
 
 
@@ -91,6 +91,10 @@ def _evaluator(spec, observation, engine, model, device, fd_step, checkpoint, pr
 
         check_budget([spec.scene] * (2 * len(spec.free) + 1), observation.frames[-1] + 1, device, str(spec.source))
         return MpmFiniteDifference(spec, observation, fd_step, device, progress), ""
+    if engine == "mpm-ad":
+        from runout.inverse.mpm_ad import MpmAutodiff
+
+        return MpmAutodiff(spec, observation, device), ""
     from runout.gns.rollout import scene_at_rest
     from runout.gns.training_range import bound_warnings, range_warnings
     from runout.inverse.forward import inverse_problem, load_model

@@ -1,0 +1,85 @@
+"""The MPM itself as the inverse's forward model, its gradient by reverse-mode AD.
+
+One evaluation is one differentiable MPM run (runout.mpm.differentiable) and one backward
+pass, whatever the number of free parameters; mpm-fd needs 2P + 1 runs for the same
+gradient. The run is built once from the spec's scene: its substep count and relaxation
+length depend on stiffness, density and geometry only, so they stay fixed while L-BFGS-B
+moves phi and c.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import torch
+
+from runout.errors import InputError, RunFailed
+from runout.inverse.memory import PeakMemory
+from runout.inverse.observation import Observation
+from runout.inverse.problem import Evaluation, material_table, weighted_mse
+from runout.inverse.spec import InverseSpec
+from runout.mpm.budget import GIB, check_budget, device_memory
+
+STATE_BYTES = 13 * 8  # x, v, C, stress, volume per point in float64: kept at each frame for the backward pass
+
+
+class MpmAutodiff:
+    """Evaluator: physical values [P] -> Evaluation (loss and its exact gradient)."""
+
+    def __init__(self, spec: InverseSpec, observation: Observation, device: str = "cpu"):
+        from runout.mpm.differentiable import DifferentiableMpm
+
+        check_ad_budget(spec, observation, device)
+        self.device = torch.device(device)
+        self.model = DifferentiableMpm(spec.scene, observation.frames, self.device, torch.float64)
+        f64 = dict(dtype=torch.float64, device=self.device)
+        names = spec.scene.material_names
+        self.table = torch.tensor(material_table(spec.scene), **f64)  # [M, 2] phi (degrees), c (kPa)
+        self.rows = torch.tensor([names.index(p.material) for p in spec.free], device=self.device)
+        self.cols = torch.tensor([0 if p.prop == "phi" else 1 for p in spec.free], device=self.device)
+        self.target = torch.tensor(observation.positions, **f64)
+        self.weights = torch.tensor(observation.weights(spec.loss), **f64)
+
+    def __call__(self, values: np.ndarray) -> Evaluation:
+        v = torch.tensor(np.asarray(values, dtype=np.float64), device=self.device, requires_grad=True)
+        with PeakMemory(self.device) as memory:
+            start = time.perf_counter()
+            table = self.table.index_put((self.rows, self.cols), v)
+            predicted = self.model(table[:, 0], table[:, 1])
+            loss = weighted_mse(predicted, self.target, self.weights)
+            self._sync()
+            forward_done = time.perf_counter()
+            loss.backward()
+            self._sync()
+            backward_done = time.perf_counter()
+        gradient = v.grad.detach().cpu().numpy()
+        if not np.all(np.isfinite(gradient)):
+            raise RunFailed(f"the MPM gradient at {values.tolist()} is not finite ({gradient.tolist()}); use --engine mpm-fd.")
+        return Evaluation(
+            values=np.asarray(values, dtype=np.float64),
+            loss=float(loss.detach()),
+            gradient=gradient,
+            forward_s=forward_done - start,
+            backward_s=backward_done - forward_done,
+            peak_memory_bytes=memory.peak_bytes,
+            deposit=predicted[-1].detach().cpu().numpy().astype(np.float32),
+        )
+
+    def _sync(self) -> None:
+        if self.device.type == "cuda":
+            torch.cuda.synchronize(self.device)
+
+
+def check_ad_budget(spec: InverseSpec, observation: Observation, device: str) -> None:
+    """The MPM run must fit (runout.mpm.budget), and so must the states kept for the backward pass."""
+    frames = observation.frames[-1] + 1
+    estimate = check_budget([spec.scene], frames, device, str(spec.source))
+    kept = estimate.points * frames * STATE_BYTES
+    have = device_memory(device)
+    if estimate.device_bytes + kept > have:
+        raise InputError(
+            f"{spec.source}: the mpm-ad engine keeps {kept / GIB:.3g} GiB of MPM states for the backward pass "
+            f"({estimate.points} points, {frames} frames) but this machine has {have / GIB:.3g} GiB; observe an "
+            "earlier frame, use a larger cell_size, or use --engine mpm-fd."
+        )
