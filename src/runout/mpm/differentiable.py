@@ -10,7 +10,7 @@ outputs. The batch is built once from the scene: the substep count, the relaxati
 the grid follow from stiffness, density and geometry, never from phi or c, so they stay fixed
 while an optimiser moves the strengths.
 
-Memory stays bounded (torch.utils.checkpoint, non-reentrant): the forward keeps only the state
+Memory stays bounded (torch.utils.checkpoint, reentrant): the forward keeps only the state
 (x, v, C, stress, volume: 13 numbers per point) at each output frame and at each relaxation
 substep, and the backward pass recomputes one frame's substeps at a time. So the memory grows
 by about 100 bytes per point per frame instead of by every substep's temporaries.
@@ -31,6 +31,7 @@ from runout.mpm.solver import Points, substep
 from runout.scene import Scene
 
 _STATE = ("x", "v", "C", "stress", "volume")
+_STRENGTHS = ("sin_phi", "cos_phi", "cohesion", "tension")  # the MaterialArrays fields that follow phi and c
 
 
 class DifferentiableMpm:
@@ -104,19 +105,25 @@ class DifferentiableMpm:
 
 
 def _advance(pts: Points, grid, dt: float, flip: float, damping: float, n: int, keep_start_only: bool = True) -> None:
-    """n substeps of pts in place, recomputed in the backward pass (only their start is kept)."""
+    """n substeps of pts in place, recomputed in the backward pass (only their start is kept).
 
-    def run(*state):
-        p = replace(pts, **dict(zip(_STATE, state)))
+    The reentrant checkpoint runs the forward without building a graph (as fast as the plain
+    MPM); the strengths are passed as explicit inputs so that their gradients come back."""
+    base = pts.mat
+
+    def run(*tensors):
+        strengths = dict(zip(_STRENGTHS, tensors[len(_STATE):]))
+        mat = MaterialArrays(lam=base.lam, shear=base.shear, plastic=base.plastic, **strengths)
+        p = replace(pts, mat=mat, **dict(zip(_STATE, tensors[: len(_STATE)])))
         for _ in range(n):
             substep(p, grid, dt, flip, damping)
         return tuple(getattr(p, name) for name in _STATE)
 
-    state = tuple(getattr(pts, name) for name in _STATE)
+    inputs = tuple(getattr(pts, name) for name in _STATE) + tuple(getattr(base, name) for name in _STRENGTHS)
     if keep_start_only and torch.is_grad_enabled():
-        state = checkpoint(run, *state, use_reentrant=False)
+        state = checkpoint(run, *inputs, use_reentrant=True)
     else:
-        state = run(*state)
+        state = run(*inputs)
     for name, value in zip(_STATE, state):
         setattr(pts, name, value)
 
