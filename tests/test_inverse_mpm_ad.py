@@ -94,3 +94,18 @@ def test_a_run_whose_kept_states_do_not_fit_is_refused(folder, monkeypatch):
     message = str(caught.value)
     assert message.startswith(str(folder / "spec.toml")) and "mpm-ad" in message and "points" in message
     assert message.count(". ") == 0 and message.endswith(".")
+
+
+def test_the_command_refuses_it_with_exit_code_2(folder, tmp_path, monkeypatch, capsys):
+    import sys
+
+    from runout.cli import main
+
+    monkeypatch.setattr(mpm_ad, "device_memory", lambda device: 1024)
+    monkeypatch.setattr(sys, "argv", ["runout", "invert", str(folder / "spec.toml"), "--engine", "mpm-ad",
+                                      "--out", str(tmp_path / "o")])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert "mpm-ad engine keeps" in err and "--engine mpm-fd" in err
