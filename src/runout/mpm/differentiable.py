@@ -120,7 +120,7 @@ def _advance(pts: Points, grid, dt: float, flip: float, damping: float, n: int, 
         return tuple(getattr(p, name) for name in _STATE)
 
     inputs = tuple(getattr(pts, name) for name in _STATE) + tuple(getattr(base, name) for name in _STRENGTHS)
-    if keep_start_only and torch.is_grad_enabled():
+    if keep_start_only and torch.is_grad_enabled() and any(t.requires_grad for t in inputs):
         state = checkpoint(run, *inputs, use_reentrant=True)
     else:
         state = run(*inputs)
