@@ -9,15 +9,13 @@ moves phi and c.
 
 from __future__ import annotations
 
-import time
 
 import numpy as np
 import torch
 
 from runout.errors import InputError, RunFailed
-from runout.inverse.memory import PeakMemory
 from runout.inverse.observation import Observation
-from runout.inverse.problem import Evaluation, material_table, weighted_mse
+from runout.inverse.problem import Evaluation, material_table, timed_evaluation, weighted_mse
 from runout.inverse.spec import InverseSpec
 from runout.mpm.budget import GIB, check_budget, device_memory
 
@@ -42,33 +40,16 @@ class MpmAutodiff:
         self.weights = torch.tensor(observation.weights(spec.loss), **f64)
 
     def __call__(self, values: np.ndarray) -> Evaluation:
-        v = torch.tensor(np.asarray(values, dtype=np.float64), device=self.device, requires_grad=True)
-        with PeakMemory(self.device) as memory:
-            start = time.perf_counter()
-            table = self.table.index_put((self.rows, self.cols), v)
-            predicted = self.model(table[:, 0], table[:, 1])
-            loss = weighted_mse(predicted, self.target, self.weights)
-            self._sync()
-            forward_done = time.perf_counter()
-            loss.backward()
-            self._sync()
-            backward_done = time.perf_counter()
-        gradient = v.grad.detach().cpu().numpy()
-        if not np.all(np.isfinite(gradient)):
-            raise RunFailed(f"the MPM gradient at {values.tolist()} is not finite ({gradient.tolist()}); use --engine mpm-fd.")
-        return Evaluation(
-            values=np.asarray(values, dtype=np.float64),
-            loss=float(loss.detach()),
-            gradient=gradient,
-            forward_s=forward_done - start,
-            backward_s=backward_done - forward_done,
-            peak_memory_bytes=memory.peak_bytes,
-            deposit=predicted[-1].detach().cpu().numpy().astype(np.float32),
-        )
+        evaluation = timed_evaluation(values, self._loss, self.device)
+        if not np.all(np.isfinite(evaluation.gradient)):
+            raise RunFailed(f"the MPM gradient at {np.asarray(values).tolist()} is not finite "
+                            f"({evaluation.gradient.tolist()}); use --engine mpm-fd.")
+        return evaluation
 
-    def _sync(self) -> None:
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
+    def _loss(self, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        table = self.table.index_put((self.rows, self.cols), v)
+        predicted = self.model(table[:, 0], table[:, 1])
+        return weighted_mse(predicted, self.target, self.weights), predicted
 
 
 def check_ad_budget(spec: InverseSpec, observation: Observation, device: str) -> None:

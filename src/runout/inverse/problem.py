@@ -88,28 +88,35 @@ class InverseProblem:
 
     def evaluate(self, values: np.ndarray) -> Evaluation:
         """Loss and its gradient w.r.t. the free values (physical units), with costs."""
-        v = torch.tensor(np.asarray(values, dtype=np.float64), device=self.device, requires_grad=True)
-        with PeakMemory(self.device) as memory:
-            start = time.perf_counter()
-            loss, predicted = self.loss(v)
-            self._sync()
-            forward_done = time.perf_counter()
-            loss.backward()
-            self._sync()
-            backward_done = time.perf_counter()
-        return Evaluation(
-            values=np.asarray(values, dtype=np.float64),
-            loss=float(loss.detach()),
-            gradient=v.grad.detach().cpu().numpy(),
-            forward_s=forward_done - start,
-            backward_s=backward_done - forward_done,
-            peak_memory_bytes=memory.peak_bytes,
-            deposit=predicted[-1].detach().cpu().numpy().astype(np.float32),
-        )
+        return timed_evaluation(values, self.loss, self.device)
 
-    def _sync(self) -> None:
-        if self.device.type == "cuda":
-            torch.cuda.synchronize(self.device)
+
+def timed_evaluation(values: np.ndarray, loss_of, device: torch.device) -> Evaluation:
+    """Evaluate loss_of(v) -> (loss, predicted [F, N, 2]) at the free values and backpropagate,
+    timing the forward and backward passes and recording the peak memory."""
+    v = torch.tensor(np.asarray(values, dtype=np.float64), device=device, requires_grad=True)
+    with PeakMemory(device) as memory:
+        start = time.perf_counter()
+        loss, predicted = loss_of(v)
+        _sync(device)
+        forward_done = time.perf_counter()
+        loss.backward()
+        _sync(device)
+        backward_done = time.perf_counter()
+    return Evaluation(
+        values=np.asarray(values, dtype=np.float64),
+        loss=float(loss.detach()),
+        gradient=v.grad.detach().cpu().numpy(),
+        forward_s=forward_done - start,
+        backward_s=backward_done - forward_done,
+        peak_memory_bytes=memory.peak_bytes,
+        deposit=predicted[-1].detach().cpu().numpy().astype(np.float32),
+    )
+
+
+def _sync(device: torch.device) -> None:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
 
 
 def _check_width(free: tuple[FreeParameter, ...], feature_width: int) -> None:
