@@ -51,13 +51,7 @@ TOY_SCENE = {
 }
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    """The test machine's cores are shared; one thread is fastest for these tiny graphs."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def tiny_gns(seed: int = 0) -> Simulator:

@@ -17,22 +17,10 @@ from runout.inverse.mpm_fd import MpmFiniteDifference
 from runout.mpm import simulate
 from runout.scene import save_scene, scene_from_dict
 from runout.trajectory import save_trajectory
+from _scenes import COLUMN_BESIDE_BLOCK
 
 # 160 moving points; the truth: c = 5 kPa in the column, phi = 20 degrees in the block
-SCENE = {
-    "domain": {"width": 60.0, "height": 40.0},
-    "time": {"frames": 13},
-    "materials": {
-        "column": {"friction_angle": 30.0, "cohesion": 5.0},
-        "block": {"friction_angle": 20.0, "cohesion": 10.0},
-        "ground": {"model": "elastic"},
-    },
-    "regions": [
-        {"material": "ground", "polygon": [[0, 0], [60, 0], [60, 2], [0, 2]], "fixed": True},
-        {"material": "column", "polygon": [[10, 2], [26, 2], [26, 30], [10, 30]]},
-        {"material": "block", "polygon": [[26, 2], [50, 2], [50, 10], [26, 10]]},
-    ],
-}
+SCENE = COLUMN_BESIDE_BLOCK
 PARAMETERS = """
 [parameters.column]
 c = { initial = 12.0, lower = 0.0, upper = 20.0 }
@@ -41,12 +29,7 @@ phi = { initial = 25.0, lower = 10.0, upper = 35.0 }
 """
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")

@@ -11,31 +11,14 @@ from runout.mpm import simulate
 from runout.mpm.differentiable import DifferentiableMpm, material_values
 from runout.mpm.mohr_coulomb import MaterialArrays, return_map
 from runout.scene import scene_from_dict
+from _scenes import COLUMN_BESIDE_BLOCK
 
 # a cohesive column beside a lower frictional block on fixed ground: 160 moving points
-SCENE = {
-    "domain": {"width": 60.0, "height": 40.0},
-    "time": {"frames": 13},
-    "materials": {
-        "column": {"friction_angle": 30.0, "cohesion": 5.0},
-        "block": {"friction_angle": 20.0, "cohesion": 10.0},
-        "ground": {"model": "elastic"},
-    },
-    "regions": [
-        {"material": "ground", "polygon": [[0, 0], [60, 0], [60, 2], [0, 2]], "fixed": True},
-        {"material": "column", "polygon": [[10, 2], [26, 2], [26, 30], [10, 30]]},
-        {"material": "block", "polygon": [[26, 2], [50, 2], [50, 10], [26, 10]]},
-    ],
-}
+SCENE = COLUMN_BESIDE_BLOCK
 FRAMES = [6, 12]
 
 
-@pytest.fixture(autouse=True, scope="module")
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 @pytest.fixture(scope="module")
