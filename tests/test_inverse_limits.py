@@ -13,7 +13,9 @@ from runout.inverse import invert, load_inverse_spec
 from runout.inverse.history import HISTORY_JSON
 from runout.scene import save_scene, scene_from_dict
 from test_cli_exits import one_sentence, run
-from test_inverse import TOY_SCENE, one_thread, toy, write_spec  # noqa: F401  (fixtures)
+from test_inverse import TOY_SCENE, toy, write_spec  # noqa: F401  (fixtures)
+
+pytestmark = pytest.mark.usefixtures("one_thread")
 
 
 def test_the_strength_of_an_elastic_material_is_not_optimised(toy, tmp_path):
