@@ -50,6 +50,26 @@ def test_a_stopped_run_resumes_exactly_as_if_never_stopped(tmp_path):
         assert torch.equal(a, b)
 
 
+def test_a_chunk_out_of_time_saves_its_last_step_and_resumes_exactly(tmp_path):
+    data = write_dataset(tmp_path / "data")
+    whole = train(config(data, tmp_path / "whole", steps=12))
+    train(config(data, tmp_path / "chunk", steps=12, max_hours=1e-9))  # the limit passes during step 1
+    from runout.gns.checkpoint import read_checkpoint
+
+    assert read_checkpoint(tmp_path / "chunk" / "checkpoint.pt")["step"] == 1
+    resumed = train(config(data, tmp_path / "chunk", steps=12, resume=True))
+    assert losses(tmp_path / "chunk") == losses(tmp_path / "whole")
+    for a, b in zip(whole.state_dict().values(), resumed.state_dict().values()):
+        assert torch.equal(a, b)
+
+
+def test_the_connectivity_radius_can_be_chosen_for_a_new_run(tmp_path):
+    data = write_dataset(tmp_path / "data")
+    model = train(config(data, tmp_path / "run", steps=1, radius=0.123))
+    assert model.radius == pytest.approx(0.123)
+    assert load_simulator(tmp_path / "run" / "checkpoint.pt").radius == pytest.approx(0.123)
+
+
 def test_a_new_run_refuses_to_overwrite_a_checkpoint(tmp_path):
     data = write_dataset(tmp_path / "data")
     train(config(data, tmp_path / "run", steps=2, save_every=1))

@@ -67,6 +67,8 @@ class TrainConfig:
     checkpoint_layers: bool = True  # recompute processor steps in backward (less memory)
     bf16: bool = False  # autocast the network to bfloat16
     lr_step_offset: int = 0  # learning-rate schedule continues from the base model's step
+    max_hours: float = 0.0  # wall-clock limit of this run (one chunk of a campaign); 0: none
+    radius: float | None = None  # connectivity radius in m (None: the dataset's default)
 
 
 def learning_rate(step: int, cfg: TrainConfig) -> float:
@@ -133,7 +135,8 @@ def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
     best = state.get("best_valid", float("inf")) if state else float("inf")
     start = state["step"] if state else 0
     losses: list[torch.Tensor] = []
-    with StopRequest() as stop:
+    deadline = time.monotonic() + cfg.max_hours * 3600 if cfg.max_hours > 0 else None
+    with StopRequest(deadline) as stop:
         for step in range(start, cfg.steps):
             lr = learning_rate(step, cfg)
             for group in optimizer.param_groups:
@@ -153,6 +156,11 @@ def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
                 if not saved and ctx.writer:
                     _save(Path(cfg.out) / CHECKPOINT, simulator, optimizer, done, cfg, best)
                 log.close()
+                if stop.out_of_time and not stop.requested:  # the chunk's time is up: a normal end
+                    if ctx.writer:
+                        tqdm.write(f"--max-hours {cfg.max_hours:g} reached after step {done}; "
+                                   f"{Path(cfg.out) / CHECKPOINT} holds it and --resume continues from there.")
+                    return simulator.eval()
                 raise Interrupted(
                     f"training stopped after step {done}, which {Path(cfg.out) / CHECKPOINT} holds, "
                     "and --resume continues exactly from there."
@@ -163,7 +171,12 @@ def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
 
 class StopRequest:
     """Ctrl-C (SIGINT) during training asks the loop to stop after the step it is in, so
-    the checkpoint it saves is that of a whole step; a second Ctrl-C stops at once."""
+    the checkpoint it saves is that of a whole step; a second Ctrl-C stops at once. A
+    deadline (time.monotonic() seconds) stops it the same way once passed."""
+
+    def __init__(self, deadline: float | None = None):
+        self.deadline = deadline
+        self.out_of_time = False
 
     def __enter__(self) -> "StopRequest":
         self.requested = False
@@ -177,12 +190,15 @@ class StopRequest:
         signal.signal(signal.SIGINT, signal.default_int_handler)
 
     def agreed(self, ctx: Context) -> bool:
-        """Whether to stop now; under torchrun every process stops if any was asked to."""
+        """Whether to stop now; under torchrun every process stops if any was asked to (or
+        ran out of time)."""
+        self.out_of_time = self.deadline is not None and time.monotonic() > self.deadline
         if ctx.world == 1:
-            return self.requested
-        flag = torch.tensor([float(self.requested)], device=ctx.device)
+            return self.requested or self.out_of_time
+        flag = torch.tensor([float(self.requested), float(self.out_of_time)], device=ctx.device)
         dist.all_reduce(flag, op=dist.ReduceOp.MAX)
-        return bool(flag.item())
+        self.out_of_time = bool(flag[1].item())
+        return bool(flag.max().item())
 
     def __exit__(self, *exc) -> None:
         if self._previous is not None:
@@ -234,7 +250,8 @@ def _build(cfg: TrainConfig, meta: dict, data: Simulations):
     stats = Normalisation.from_metadata(meta, cfg.noise_velocity_std * float(meta.get("dt", FRAME_DT)))
     schema = data.schema()
     torch.manual_seed(cfg.seed)
-    return Simulator(schema, stats, float(meta["default_connectivity_radius"]), cfg.network), None, cfg
+    radius = cfg.radius if cfg.radius is not None else float(meta["default_connectivity_radius"])
+    return Simulator(schema, stats, radius, cfg.network), None, cfg
 
 
 def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: float) -> None:

@@ -40,7 +40,7 @@ def generate(
     batch: int = typer.Option(16, "--batch", help="Scenes per MPM batch and per part file."),
     shard: str = typer.Option(None, "--shard", help="i/n: run only batches j with j mod n = i (default: torchrun's RANK/WORLD_SIZE)."),
     frames: int = typer.Option(480, "--frames", help="Output frames per scene, frame 0 included."),
-    cell_size: float = typer.Option(4.0, "--cell-size", hidden=True, help="Background cell size (m); coarse only for tests."),
+    cell_size: float = typer.Option(4.0, "--cell-size", help="Background cell size in m (paper: 4; the shipped CPU models: 8). Points are 2 x 2 per cell."),
     force: bool = FORCE,
 ) -> None:
     """Sample scenes, run them through the batched MPM and write train/valid/test.npz and

@@ -26,7 +26,10 @@ def train(
     init: Path = typer.Option(None, "--init", help="Fine-tune from this checkpoint; extra material inputs (e.g. cohesion) start with zero weights."),
     device: str = typer.Option("auto", "--device", help="auto, cpu, cuda or cuda:K (under torchrun each process takes its LOCAL_RANK GPU)."),
     batch_size: int = typer.Option(2, "--batch-size", help="Graphs per process and step."),
-    lr: float = typer.Option(1e-4, "--lr", help="Initial learning rate; decays as (lr - 1e-6) 0.1^(step / 5e6) + 1e-6."),
+    lr: float = typer.Option(1e-4, "--lr", help="Initial learning rate; decays as (lr - 1e-6) 0.1^(step / D) + 1e-6."),
+    lr_decay_steps: float = typer.Option(5e6, "--lr-decay-steps", help="D: steps over which the learning rate falls tenfold (paper: 5e6; fit it to the budget)."),
+    max_hours: float = typer.Option(0.0, "--max-hours", help="Wall-clock hours for this run (one chunk); then save and stop, exit 0 (0: no limit)."),
+    radius: float = typer.Option(None, "--radius", help="Connectivity radius in m (default: the dataset's, 2.3 point spacings); new runs only."),
     noise_std: float = typer.Option(0.067, "--noise-std", help="Velocity noise std in m/s (converted to m per frame with the dataset's dt)."),
     latent: int = typer.Option(128, "--latent", help="Latent size of nodes and edges."),
     hidden: int = typer.Option(128, "--hidden", help="Units of each hidden MLP layer."),
@@ -57,6 +60,9 @@ def train(
     ):
         check_range(name, value, lo, hi)
     check_range("--noise-std", noise_std, 0.0, MAX_NOISE_STD, " m/s")
+    check_range("--lr-decay-steps", lr_decay_steps, 1.0, 1e12)
+    check_range("--max-hours", max_hours, 0.0, 1000.0, " h")
+    check_range("--radius", radius, 0.1, 1000.0, " m")
     if not 0 < lr <= 1:
         raise InputError(f"--lr = {lr:g} is outside the allowed range (0, 1].")
     folder = check_folder(out, "train", (CHECKPOINT, BEST, LOG, "tensorboard"), mode="resume", force=force)
@@ -68,7 +74,8 @@ def train(
         network=NetworkConfig(latent=latent, hidden=hidden, message_passing_steps=message_passing),
         save_every=save_every, log_every=log_every, valid_every=valid_every,
         valid_trajectories=valid_trajectories, valid_frames=valid_frames,
-        checkpoint_layers=checkpoint_layers, bf16=bf16,
+        checkpoint_layers=checkpoint_layers, bf16=bf16, lr_decay_steps=lr_decay_steps,
+        max_hours=max_hours, radius=radius,
     )
     run_training(cfg)
 
