@@ -10,11 +10,11 @@ from typer.testing import CliRunner
 import runout.mpm.cache as mpm_cache
 from runout.cli import app
 from runout.errors import InputError
-from runout.evaluate import ColumnCase, MpmCache, column_scene, scene_key
+from runout.evaluate import ColumnCase, MpmCache, column_file, column_scene, scene_key
 from runout.evaluate.columns import CSV_COLUMNS
 from runout.evaluate.diagnostics import sigma_distance
 from runout.evaluate.inverse_study import spec_text
-from runout.evaluate.scenes import EXAMPLES
+from runout.evaluate.scenes import EXAMPLES, example_scene
 from runout.gns.checkpoint import save_checkpoint
 from runout.gns.schema import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
@@ -102,8 +102,9 @@ def test_missing_scenes_run_in_one_batch_and_are_keyed_by_their_toml(tmp_path, m
     calls = []
     real = mpm_cache.simulate
     monkeypatch.setattr(mpm_cache, "simulate", lambda scenes, **kw: calls.append(len(scenes)) or real(scenes, **kw))
-    a = column_scene(EXAMPLES, ColumnCase(1.0, 22.5, 25.0), 8, 0.1)
-    b = column_scene(EXAMPLES, ColumnCase(1.0, 22.5, 40.0), 8, 0.1)
+    column = example_scene(EXAMPLES, column_file(1.0))
+    a = column_scene(column, ColumnCase(1.0, 22.5, 25.0), 8, 0.1)
+    b = column_scene(column, ColumnCase(1.0, 22.5, 40.0), 8, 0.1)
     cache = MpmCache(tmp_path)
     paths = cache.ensure([a, b, a], progress=False)
     assert calls == [2] and cache.simulated == 2
@@ -124,6 +125,28 @@ def test_a_second_columns_run_reads_the_mpm_from_the_cache(studies, tmp_path, mo
 
 
 # ----------------------------------------------------------------------------- studies
+
+
+def test_a_study_runs_the_mpm_and_the_gns_at_the_models_spacing(tmp_path):
+    from runout.evaluate import EngineRun, run_columns
+    from runout.evaluate.columns import ColumnGrid
+    from runout.gns.checkpoint import load_simulator
+    from runout.gns.training_range import point_spacing
+    from runout.scene import load_scene
+    from runout.trajectory import load_trajectory
+
+    simulator = load_simulator(tiny_model(tmp_path / "model.pt"))
+    simulator.data_ranges = {"point_spacing_m": 5.0}  # trained at 10 m cells; the example columns have 4 m
+    save_checkpoint(tmp_path / "coarse.pt", simulator)
+    lines = []
+    run = EngineRun(MpmCache(tmp_path / "cache"), progress=False, log=lines.append)
+    summary = run_columns(tmp_path / "coarse.pt", tmp_path / "out", ColumnGrid((1.0,), (22.5,), (25.0,), 8, 0.2), run)
+    assert lines == ["filling column_a1.toml at the model's 5 m spacing (10 m cells) instead of the scene's 4 m cells"]
+    mpm_dir = tmp_path / "cache" / summary["percentile_cases"]["50"]["mpm_key"]
+    assert load_scene(mpm_dir / "scene.toml").domain.cell_size == 10.0
+    gns = load_trajectory(tmp_path / "out" / "columns" / "gns" / "column_a1_phi22.5_c25")
+    assert point_spacing(load_trajectory(mpm_dir)) == point_spacing(gns) == pytest.approx(5.0)
+    assert summary["percentile_cases"]["50"]["L0_m"] == pytest.approx(30.0)  # a 150 m column at scale 0.2
 
 
 def test_columns_writes_every_case_with_its_runouts_and_errors(studies):

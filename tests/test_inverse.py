@@ -58,6 +58,7 @@ def tiny_gns(seed: int = 0) -> Simulator:
     torch.manual_seed(seed)
     stats = Normalisation((0.0, 0.0), (2e-2, 2e-2), (0.0, 0.0), (2e-3, 2e-3), 0.0)  # m/frame, m/frame^2
     simulator = Simulator(FeatureSchema(), stats, 5.0, NetworkConfig(16, 16, 1, 2)).eval()
+    simulator.data_ranges = {"point_spacing_m": 2.0}  # TOY_SCENE's 4 m cells: invert fills the scene at this spacing
     with torch.no_grad():
         simulator.network.node_encoder[0].weight[:, -2:] *= 20  # material columns: strong response
     return simulator
@@ -172,6 +173,17 @@ def test_cohesion_needs_a_model_that_reads_it(toy):
     simulator.schema = simulator.schema.with_material_features(("tan_phi",))
     with pytest.raises(InputError, match="cannot back-calculate c\\[left\\]"):
         inverse_problem(spec, load_observation(spec), simulator)
+
+
+def test_the_gns_fills_the_scene_at_the_models_spacing_so_the_target_must_be_made_there(toy, tmp_path):
+    simulator = tiny_gns()
+    simulator.data_ranges = {"point_spacing_m": 3.0}  # 6 m cells; the toy target is a run at 4 m cells
+    save_checkpoint(tmp_path / "coarse.pt", simulator)
+    spec = write_spec(toy, "[parameters.right]\nc = { initial = 20.0, lower = 10.0, upper = 80.0 }", name="coarse.toml")
+    lines = []
+    with pytest.raises(InputError, match=r"but the scene at the model's 3 m point spacing \(6 m cells\) fills \d+; "):
+        invert(spec, tmp_path / "run", model=tmp_path / "coarse.pt", log=lines.append)
+    assert lines == [f"filling the scene of {spec} at the model's 3 m spacing (6 m cells) instead of the scene's 4 m cells"]
 
 
 def test_observed_positions_file_and_front_weighting(toy, tmp_path):

@@ -12,7 +12,7 @@ import torch
 
 from runout.gns.checkpoint import load_simulator, read_checkpoint
 from runout.gns.rollout import scene_at_rest
-from runout.gns.training_range import bound_warnings, range_warnings
+from runout.gns.training_range import bound_warnings, measure, range_warnings
 from runout.mpm.cache import MpmCache, scene_key
 from runout.scene import save_scene, scene_from_dict
 from test_cli_exits import TINY, run
@@ -52,6 +52,13 @@ def test_training_records_the_ranges_of_its_data(trained):
     assert ranges["cohesion_kpa"] == pytest.approx([c.min(), c.max()], rel=1e-5)
     assert ranges["domain_m"] == [60.0, 30.0] and ranges["point_spacing_m"] == pytest.approx(4.6 / 2.3)
     assert ranges["materials_per_scene"] == [1, 1]
+
+
+def test_the_recorded_spacing_is_the_datasets_not_the_models_radius():
+    soil = [np.array([[0.5, 0.2]])], [np.array([6])]
+    meta = {"bounds": [[0, 60], [0, 30]], "default_connectivity_radius": 4.6}
+    assert measure(*soil, meta, radius=12.0, source="test")["point_spacing_m"] == pytest.approx(2.0)
+    assert measure(*soil, {**meta, "cell_size": 8.0}, radius=12.0, source="test")["point_spacing_m"] == 4.0
 
 
 def test_a_scene_inside_the_ranges_gets_no_warning(trained):

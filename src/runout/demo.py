@@ -6,8 +6,8 @@
     inverse analysis back-calculates the undrained strength c of its lower downstream shell
     from the final deposit with the GNS: history.csv, loss.png, parameters.png, deposit.png.
 
-Scenes are filled at the model's own point spacing (its connectivity radius / 2.3), so a
-model trained at coarse cells sees graphs like those it was trained on.
+Scenes are filled at the model's own point spacing (Simulator.point_spacing, from its
+training data), so a model trained at coarse cells sees graphs like those it was trained on.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def run_demo(out: Path, model: Path, examples: Path, quick: bool = False, force:
 
 def _forward(simulator, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, Path]:
     """GNS runout of a scene from rest: animation.gif and final.png."""
-    scene = at_model_spacing(load_scene(scene_path), simulator)
+    scene = at_model_spacing(load_scene(scene_path), simulator, scene_path.name, log)
     start = scene_at_rest(scene, simulator.schema.history)
     frames = QUICK_FRAMES if quick else FORWARD_FRAMES
     t0 = time.perf_counter()
@@ -74,7 +74,7 @@ def _forward(simulator, scene_path: Path, out: Path, quick: bool, log: Log) -> t
 
 def _inverse(simulator, model: Path, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, ...]:
     """Back-calculate c of the dam's lower downstream shell from its MPM deposit."""
-    scene = at_model_spacing(load_scene(scene_path), simulator)
+    scene = at_model_spacing(load_scene(scene_path), simulator, scene_path.name, log)
     if FREE_MATERIAL not in scene.materials:
         raise InputError(f"{scene_path}: the demo needs a material named {FREE_MATERIAL}.")
     if quick:

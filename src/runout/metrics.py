@@ -7,7 +7,9 @@ Trajectory, so none of these care which engine made it. Two runout measures, nam
     runout_extent(traj)   horizontal extent of the soil, max x - min x
 
 and one normalisation of either, L^n = (L_f - L_0) / L_0 (normalised_runout);
-normalised_extent(traj) is that of the extent from the first to the last frame.
+normalised_extent(traj) is that of the extent from the first to the last frame. A mound's
+two fronts are side_runouts about its axis (mound_axis); deposit_iou compares where two
+deposits lie, cell by cell.
 """
 
 from __future__ import annotations
@@ -47,6 +49,30 @@ def side_runouts(traj: Trajectory, centre: float, frame: int = -1) -> tuple[floa
     """Distances (m) from x = centre to the leftmost and the rightmost soil point."""
     x = traj.positions[frame, traj.soil, 0]
     return float(centre - x.min()), float(x.max() - centre)
+
+
+def mound_axis(traj: Trajectory) -> float:
+    """x (m) halfway between the outermost soil points of the first frame (the axis of a
+    symmetric mound at rest: 500 m for the paper's four-layer slope)."""
+    x = traj.positions[0, traj.soil, 0]
+    return float(x.min() + x.max()) / 2
+
+
+def occupied_cells(traj: Trajectory, cell: float, frame: int = -1) -> np.ndarray:
+    """Sorted distinct indices of the grid cells (side `cell` m, from the domain's lower-left
+    corner) that hold soil points at a frame, each cell as one integer ix * rows + iy."""
+    lo = np.asarray(traj.bounds, dtype=float)[:, 0]
+    rows = int(np.ceil((traj.bounds[1][1] - traj.bounds[1][0]) / cell)) + 1
+    index = np.floor((traj.positions[frame, traj.soil].astype(np.float64) - lo) / cell).astype(np.int64)
+    return np.unique(index[:, 0] * rows + index[:, 1])
+
+
+def deposit_iou(predicted: Trajectory, truth: Trajectory, cell: float, frame: int = -1) -> float:
+    """Intersection over union of the cells (side `cell` m) occupied by soil at a frame of
+    the two trajectories (same domain): 1 for the same deposit, 0 for disjoint ones."""
+    a, b = occupied_cells(predicted, cell, frame), occupied_cells(truth, cell, frame)
+    union = len(np.union1d(a, b))
+    return len(np.intersect1d(a, b)) / union if union else 1.0
 
 
 def absolute_percentage_error(predicted, truth) -> np.ndarray:

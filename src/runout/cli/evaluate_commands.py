@@ -1,7 +1,8 @@
 """`runout evaluate ...`: the paper's results sections as commands, for any GNS checkpoint.
 
 Each study writes OUT/<study>/ (summary.json, CSV, figures); `runout evaluate report`
-turns them into docs/results.md. MPM runs are cached by scene in --cache.
+turns them into docs/results.md. Scenes are filled at the model's point spacing for both
+engines; MPM runs are cached by scene in --cache.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ OUT = typer.Option(..., "--out", help="Results folder; each study writes OUT/<st
 DEVICE = typer.Option("cpu", "--device", help="cpu or cuda, for both the MPM and the GNS.")
 CACHE = typer.Option(DEFAULT_CACHE, "--cache", help="Folder of cached MPM runs, keyed by a hash of each scene's TOML.")
 EXAMPLE_DIR = typer.Option(EXAMPLES, "--examples", help="Folder holding the example scenes (column_a*.toml, four_layer_slope.toml, dam.toml, dam_inverse.toml).")
-SCALE = typer.Option(1.0, "--scale", help="Shrink domain and geometry by this factor in (0, 1] (cells stay 4 m); 1 = the paper's geometry.")
+SCALE = typer.Option(1.0, "--scale", help="Shrink domain and geometry by this factor in (0, 1] (cells stay the model's); 1 = the paper's geometry.")
 PROGRESS = typer.Option(True, "--progress/--no-progress", help="Show progress bars.")
 FORCE = typer.Option(False, "--force", help="Replace another command's results in --out (other studies' results are kept).")
 
@@ -68,7 +69,7 @@ def _engines(cache: Path, device: str, progress: bool):
 
     if device.startswith("cuda") and not torch.cuda.is_available():
         raise InputError("--device cuda was asked for but no CUDA GPU is available; use --device cpu.")
-    return EngineRun(MpmCache(cache), device, progress)
+    return EngineRun(MpmCache(cache), device, progress, log=typer.echo)
 
 
 @evaluate_app.command()

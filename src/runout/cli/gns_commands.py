@@ -83,7 +83,7 @@ def train(
 @app.command()
 def rollout(
     model: Path = typer.Option(..., "--model", help="GNS checkpoint (.pt)."),
-    source: Path = typer.Argument(..., help="SCENE.toml/.json (starts at rest), a trajectory folder from `runout mpm`, or a dataset folder."),
+    source: Path = typer.Argument(..., help="SCENE.toml/.json (filled at the model's point spacing, starts at rest), a trajectory folder from `runout mpm`, or a dataset folder."),
     out: Path = typer.Option(..., "--out", help="Output folder: trajectory.npz, metadata.json, metrics.json, pictures, animation."),
     frames: int = typer.Option(0, "--frames", help="Frames to produce, the first 6 included (0: the scene's or ground truth's count)."),
     stop_speed: float = typer.Option(0.05, "--stop-speed", help="Stop once every soil point moves slower than this (m/s); 0: never stop early."),
@@ -107,7 +107,7 @@ def rollout(
     writes = ROLLOUT_FILES + ((animation_name(),) if animation else ()) + (("vtk",) if vtk else ())
     folder = check_folder(out, "rollout", writes, force=force)
     simulator = load_simulator(model, device)
-    initial, truth, warnings = initial_state(source, split, index, simulator)
+    initial, truth, warnings = initial_state(source, split, index, simulator, log=lambda line: typer.echo(line, err=True))
     for line in warnings:
         typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW)
     n_frames = frames or (truth.n_frames if truth is not None else initial.info.get("frames", 480))

@@ -24,7 +24,8 @@ def invert(
 ) -> None:
     """Fit the spec's free material parameters (phi in degrees, c in kPa) to the target runout
     with L-BFGS-B inside their bounds; writes history.csv, history.json, loss.png,
-    parameters.png and deposit.png, and prints the answer with its bounds."""
+    parameters.png and deposit.png, and prints the answer with its bounds. The gns engine
+    fills the scene at the model's point spacing (the target must be a run at that spacing)."""
     import torch
 
     from runout.errors import InputError, Interrupted, RunFailed

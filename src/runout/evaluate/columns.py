@@ -5,7 +5,8 @@ half the point spacing, i.e. the edge of the material the points stand for) of t
 against the left wall at the first and the last frame (m), L^n = (L_f - L_0) / L_0, and the
 error is |L^n_GNS - L^n_MPM| / L^n_MPM x 100 (%). Per aspect ratio: mean error, its
 coefficient of variation and R² of the GNS against the MPM (1:1 line). The GNS starts from
-the MPM's first 6 frames, as the public GNS evaluation does.
+the MPM's first 6 frames, as the public GNS evaluation does; both run at the model's point
+spacing.
 
 Writes OUT/columns/: cases.csv, summary.json, runout_1to1.png, error_heatmaps.png,
 evolution_p25.png, evolution_p50.png, evolution_p75.png and gns/<case>/ trajectories.
@@ -27,7 +28,7 @@ from tqdm.auto import tqdm
 from runout.evaluate.column_figures import draw_error_heatmaps, draw_evolution, draw_runout_comparison
 from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
-from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_scene
+from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_file, column_scene, model_scene
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
 from runout.metrics import absolute_percentage_error, coefficient_of_variation, normalised_runout, r_squared, runout_front
@@ -78,9 +79,10 @@ def run_columns(model: Path, out: Path, grid: ColumnGrid, run: EngineRun) -> dic
     """Run the study; returns the summary written to OUT/columns/summary.json."""
     folder = Path(out) / "columns"
     cases = grid.cases()
-    scenes = [column_scene(grid.examples, c, grid.frames, grid.scale) for c in cases]
-    mpm_dirs = run.cache.ensure(scenes, run.device, run.progress)
     simulator = load_simulator(model, run.device)
+    columns = {a: model_scene(grid.examples, column_file(a), simulator, run.log) for a in dict.fromkeys(grid.aspects)}
+    scenes = [column_scene(columns[c.aspect], c, grid.frames, grid.scale) for c in cases]
+    mpm_dirs = run.cache.ensure(scenes, run.device, run.progress)
     rows = []
     for case, scene, mpm_dir in tqdm(list(zip(cases, scenes, mpm_dirs)), desc="GNS columns", disable=not run.progress):
         truth = load_trajectory(mpm_dir)

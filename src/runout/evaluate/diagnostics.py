@@ -21,7 +21,7 @@ import numpy as np
 from runout.evaluate.diagnostics_figures import draw_diagnostics
 from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
-from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_scene
+from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_file, column_scene, model_scene
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
 from runout.metrics import velocities
@@ -74,9 +74,10 @@ def run_diagnostics(model: Path, out: Path, run: EngineRun, case: ColumnCase = P
                     scale: float = 1.0, examples: Path = EXAMPLES) -> dict:
     """Run the diagnostics; returns the summary written to OUT/diagnostics/summary.json."""
     folder = Path(out) / "diagnostics"
-    scene = column_scene(examples, case, frames, scale)
-    truth = run.cache.load(scene, run.device, run.progress)
     simulator = load_simulator(model, run.device)
+    column = model_scene(examples, column_file(case.aspect), simulator, run.log)
+    scene = column_scene(column, case, frames, scale)
+    truth = run.cache.load(scene, run.device, run.progress)
     predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None, progress=run.progress)
     save_trajectory(predicted, folder / "gns", simulator.schema.material_width)
     mean, std = training_velocity(simulator, truth.frame_dt)

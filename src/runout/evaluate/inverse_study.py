@@ -4,7 +4,9 @@ back-calculates c of material 1, c of material 2 (a tight box) and phi of materi
 The parameters, bounds and loss come from examples/dam_inverse.toml (the paper's Table 3:
 c1 in [10, 100] kPa, c2 in [99, 101] kPa, phi3 in [5, 50] degrees); this study only points
 its target at the cached MPM run of examples/dam.toml and calls `runout.inverse.invert`.
-The model loss is the MSE between the normalised true and inferred parameters.
+The model loss is the MSE between the normalised true and inferred parameters. The target
+is an MPM run of the dam at the model's point spacing, the spacing the inverse rolls the GNS
+out at.
 
 Writes OUT/inverse/: scene.toml and spec.toml (the problem solved), target.png (initial
 geometry, MPM deposit, its displacement), run/ (history.json, history.csv, loss.png,
@@ -21,7 +23,8 @@ from matplotlib.figure import Figure  # no pyplot: no global figure state, no GU
 
 from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
-from runout.evaluate.scenes import EXAMPLES, example_scene, scaled
+from runout.evaluate.scenes import EXAMPLES, example_scene, model_scene, scaled
+from runout.gns.checkpoint import load_simulator
 from runout.inverse import invert
 from runout.plots import draw_displacement, draw_materials
 from runout.scene import save_scene
@@ -35,7 +38,7 @@ def run_inverse(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLE
                 scale: float = 1.0, max_iterations: int | None = None, log=None) -> dict:
     """Run the study; returns the summary written to OUT/inverse/summary.json."""
     folder = Path(out) / "inverse"
-    scene = scaled(example_scene(examples, DAM_SCENE), scale)
+    scene = scaled(model_scene(examples, DAM_SCENE, load_simulator(model, run.device), run.log), scale)
     scene = scene.with_frames(frames) if frames is not None else scene
     target = run.cache.ensure([scene], run.device, run.progress)[0]
     folder.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,11 @@
-"""The paper's test scenes, built from the example scene files, optionally shrunk.
+"""The paper's test scenes, built from the example scene files at the model's point spacing,
+optionally shrunk.
 
-`--scale s` shrinks a scene's domain and polygons by s (cell size and point spacing stay),
-so the same study runs on a few hundred points in a test; scale 1 is the paper's geometry.
+Every study fills its scenes at the spacing the model was trained at (model_scene, through
+runout.gns.rollout.at_model_spacing), and the MPM reference runs on those same scenes, so
+both engines see the same points at the same resolution. `--scale s` then shrinks a
+scene's domain and polygons by s (cell size and point spacing stay), so the same study runs
+on a few hundred points in a test; scale 1 is the paper's geometry.
 """
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from runout.errors import InputError
+from runout.gns.rollout import at_model_spacing
 from runout.scene import EXAMPLES, Scene, load_scene
 
 COLUMN_ASPECTS = (0.5, 1.0, 2.0)  # H0 / L0 of examples/column_a{a}.toml
@@ -22,6 +27,12 @@ def example_scene(examples: Path, name: str) -> Scene:
     if not path.is_file():
         raise InputError(f"{path}: no such example scene; pass --examples with the folder holding {name}.")
     return load_scene(path)
+
+
+def model_scene(examples: Path, name: str, simulator, log=None) -> Scene:
+    """EXAMPLES/name filled at the model's point spacing; `log` gets one line when the
+    scene's own cells differ."""
+    return at_model_spacing(example_scene(examples, name), simulator, name, log)
 
 
 def scaled(scene: Scene, scale: float) -> Scene:
@@ -48,13 +59,18 @@ class ColumnCase:
         return f"column_a{self.aspect:g}_phi{self.phi:g}_c{self.cohesion:g}"
 
 
-def column_scene(examples: Path, case: ColumnCase, frames: int, scale: float = 1.0) -> Scene:
-    """examples/column_a{a}.toml with the case's phi and c, `frames` frames, shrunk by `scale`."""
-    if case.aspect not in COLUMN_ASPECTS:
+def column_file(aspect: float) -> str:
+    """The example column of an aspect ratio, column_a{a}.toml."""
+    if aspect not in COLUMN_ASPECTS:
         allowed = ", ".join(f"{a:g}" for a in COLUMN_ASPECTS)
-        raise InputError(f"aspect ratio {case.aspect:g} has no example column; choose from {allowed}.")
-    base = example_scene(examples, f"column_a{case.aspect:g}.toml")
-    scene = scaled(base, scale).with_materials(
+        raise InputError(f"aspect ratio {aspect:g} has no example column; choose from {allowed}.")
+    return f"column_a{aspect:g}.toml"
+
+
+def column_scene(column: Scene, case: ColumnCase, frames: int, scale: float = 1.0) -> Scene:
+    """The example column of the case's aspect ratio (e.g. model_scene of column_file(a))
+    with the case's phi and c, `frames` frames, shrunk by `scale`."""
+    scene = scaled(column, scale).with_materials(
         **{COLUMN_MATERIAL: {"friction_angle": float(case.phi), "cohesion": float(case.cohesion)}}
     )
     return replace(scene.with_frames(frames), name=case.name)

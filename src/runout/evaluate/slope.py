@@ -2,9 +2,10 @@
 and displacement fields side by side, displacement-error growth and the wall time of both
 engines.
 
-Runout on a side is the distance (m) from the mound's axis (x = 500 m) to the
-outermost soil point; its error is |L_GNS - L_MPM| / L_MPM x 100 (%). The displacement
-error of a point is the distance (m) between its GNS and MPM positions at a frame.
+Both engines run the scene at the model's point spacing. Runout on a side is the distance
+(m) from the mound's axis (x = 500 m, runout.metrics.mound_axis) to the outermost soil
+point; its error is |L_GNS - L_MPM| / L_MPM x 100 (%). The displacement error of a point is
+the distance (m) between its GNS and MPM positions at a frame.
 
 Writes OUT/slope/: summary.json, fields_materials.png, fields_displacement.png,
 displacement_error.png and gns/ (the GNS trajectory).
@@ -21,11 +22,11 @@ import numpy as np
 
 from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
-from runout.evaluate.scenes import EXAMPLES, example_scene, scaled
+from runout.evaluate.scenes import EXAMPLES, model_scene, scaled
 from runout.evaluate.slope_figures import draw_displacement_error, draw_fields
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
-from runout.metrics import absolute_percentage_error, displacement_error, side_runouts
+from runout.metrics import absolute_percentage_error, displacement_error, mound_axis, side_runouts
 from runout.trajectory import Trajectory, save_trajectory
 
 SLOPE_SCENE = "four_layer_slope.toml"
@@ -41,12 +42,12 @@ def run_slope(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLES,
               scale: float = 1.0, rerun_mpm: bool = False) -> dict:
     """Run the study; returns the summary written to OUT/slope/summary.json."""
     folder = Path(out) / "slope"
-    scene = scaled(example_scene(examples, SLOPE_SCENE), scale)
+    simulator = load_simulator(model, run.device)
+    scene = scaled(model_scene(examples, SLOPE_SCENE, simulator, run.log), scale)
     scene = scene.with_frames(frames) if frames is not None else scene
     if rerun_mpm:
         run.cache.path(scene).joinpath("metadata.json").unlink(missing_ok=True)
     truth = run.cache.load(scene, run.device, run.progress)
-    simulator = load_simulator(model, run.device)
     start = time.perf_counter()
     predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None, progress=run.progress)
     gns_wall = time.perf_counter() - start
@@ -57,12 +58,6 @@ def run_slope(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLES,
     draw_displacement_error(truth, predicted, folder / "displacement_error.png")
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
-
-
-def mound_axis(traj: Trajectory) -> float:
-    """x (m) halfway between the outermost soil points at rest (500 m for the paper's slope)."""
-    x = traj.positions[0, traj.soil, 0]
-    return float(x.min() + x.max()) / 2
 
 
 def summarise(truth: Trajectory, predicted: Trajectory, centre: float, gns_wall: float, device: str, model: Path) -> dict:

@@ -3,7 +3,8 @@
 Keys: format, schema (node-feature layout), stats (normalisation), radius (m), network
 (layer sizes), model (state dict), and for training runs optimizer, step, rng, train
 (the training settings), data_ranges (what the model was trained on, see
-runout.gns.training_range). Files are written atomically (temporary file, then
+runout.gns.training_range; its point_spacing_m is the spacing every GNS command fills a
+scene at, Simulator.point_spacing). Files are written atomically (temporary file, then
 os.replace), so a run killed while saving leaves the previous checkpoint intact.
 
 Everything in a checkpoint is plain data (tensors, dicts, lists, numbers, strings), and it
@@ -117,6 +118,9 @@ def check_contents(ckpt: dict, path) -> None:
     ranges = ckpt.get("data_ranges")
     if ranges is not None and not isinstance(ranges, dict):
         raise InputError(f"{path}: the checkpoint's 'data_ranges' is a {type(ranges).__name__}; expected a table.")
+    spacing = (ranges or {}).get("point_spacing_m")
+    if spacing is not None and (not _finite(spacing) or not 0 < spacing <= MAX_RADIUS):
+        raise InputError(f"{path}: data_ranges.point_spacing_m = {spacing!r} is outside the allowed range (0, {MAX_RADIUS:g}] m.")
 
 
 def _check_table(table: dict, known: set[str], where: str, path, require: bool = False) -> None:

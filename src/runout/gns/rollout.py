@@ -8,15 +8,16 @@ RolloutDiverged. With `checkpoint=True` each step is recomputed in the backward 
 
 from __future__ import annotations
 
-from dataclasses import replace
+import math
+from collections.abc import Callable
 
 import numpy as np
 import torch
 from torch.utils.checkpoint import checkpoint as recompute_in_backward
 from tqdm.auto import tqdm
 
-from runout.errors import RunFailed
-from runout.gns.schema import HISTORY, RADIUS_PER_SPACING
+from runout.errors import InputError, RunFailed
+from runout.gns.schema import HISTORY
 from runout.gns.simulator import Case, Simulator
 from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
@@ -121,9 +122,18 @@ def scene_at_rest(scene: Scene, history: int = HISTORY) -> Trajectory:
     return trajectory_for_scene(scene, positions, points.particle_type, points.material_id)
 
 
-def at_model_spacing(scene: Scene, simulator: Simulator) -> Scene:
+def at_model_spacing(
+    scene: Scene, simulator: Simulator, source: str = "<scene>", log: Callable[[str], None] | None = None,
+) -> Scene:
     """The scene with cells sized so that its points sit at the model's training spacing
-    (its connectivity radius / RADIUS_PER_SPACING), so the model sees graphs like its own."""
-    spacing = simulator.radius / RADIUS_PER_SPACING  # m
-    cell = round(spacing * scene.domain.points_per_cell, 6)
-    return replace(scene, domain=replace(scene.domain, cell_size=cell))
+    (simulator.point_spacing), so the model sees graphs like its own; every GNS command fills
+    scenes through here. When the scene's own cells differ, one line to `log` says so."""
+    spacing = simulator.point_spacing  # m
+    try:
+        filled = scene.with_point_spacing(spacing, source)
+    except InputError as exc:
+        raise InputError(f"{str(exc).rstrip('.')} (when filled at the model's {spacing:g} m point spacing).") from None
+    if log is not None and not math.isclose(filled.domain.cell_size, scene.domain.cell_size, rel_tol=1e-6):
+        log(f"filling {source} at the model's {spacing:g} m spacing ({filled.domain.cell_size:g} m cells) "
+            f"instead of the scene's {scene.domain.cell_size:g} m cells")
+    return filled

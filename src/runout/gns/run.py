@@ -4,12 +4,13 @@ trajectory folder or a dataset split, and the files the run writes."""
 from __future__ import annotations
 
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 from runout.dataset import load_split_trajectory
 from runout.errors import InputError
 from runout.gns.checkpoint import check_schema
-from runout.gns.rollout import scene_at_rest
+from runout.gns.rollout import at_model_spacing, scene_at_rest
 from runout.gns.schema import material_names_for_width
 from runout.gns.simulator import Simulator
 from runout.metrics import compare, normalised_extent, position_mse, runout_extent
@@ -20,10 +21,14 @@ from runout.trajectory import Trajectory, load_trajectory, save_trajectory
 ROLLOUT_FILES = ("trajectory.npz", "metadata.json", "snapshots.png", "metrics.json", "position_mse.png")
 
 
-def initial_state(source: Path, split: str, index: int, simulator: Simulator) -> tuple[Trajectory, Trajectory | None, list[str]]:
-    """(trajectory whose first frames start the rollout, ground truth or None, warnings)."""
+def initial_state(
+    source: Path, split: str, index: int, simulator: Simulator, log: Callable[[str], None] | None = None,
+) -> tuple[Trajectory, Trajectory | None, list[str]]:
+    """(trajectory whose first frames start the rollout, ground truth or None, warnings).
+    A scene file is filled at the model's point spacing (`log` gets the line saying so when
+    its own cells differ)."""
     if source.is_file():
-        scene = load_scene(source)
+        scene = at_model_spacing(load_scene(source), simulator, str(source), log)
         start = scene_at_rest(scene, simulator.schema.history)
         start.info["frames"] = scene.time.frames
         return start, None, _ignored_cohesion(scene, simulator)

@@ -25,7 +25,7 @@ from torch import nn
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.gns.graph import radius_graph
 from runout.gns.network import EncodeProcessDecode
-from runout.gns.schema import FeatureSchema
+from runout.gns.schema import RADIUS_PER_SPACING, FeatureSchema
 
 
 @dataclass(frozen=True)
@@ -132,6 +132,14 @@ class Simulator(nn.Module):
         self.register_buffer("vel_scale", torch.tensor(stats.vel_std).square().add(noise2).sqrt())
         self.register_buffer("acc_mean", torch.tensor(stats.acc_mean))
         self.register_buffer("acc_scale", torch.tensor(stats.acc_std).square().add(noise2).sqrt())
+
+    @property
+    def point_spacing(self) -> float:
+        """The lattice spacing (m) of the points the model was trained on: its data_ranges'
+        point_spacing_m, or radius / RADIUS_PER_SPACING for a checkpoint that records none.
+        Scenes are filled at this spacing for the model (runout.gns.rollout.at_model_spacing)."""
+        recorded = (self.data_ranges or {}).get("point_spacing_m")
+        return float(recorded) if recorded else self.radius / RADIUS_PER_SPACING
 
     def forward(self, window, particle_type, material, bounds, graph=None, recompute_steps: bool = False) -> torch.Tensor:
         """Normalised acceleration [N, 2] from window [N, history, 2] (m), particle_type [N],

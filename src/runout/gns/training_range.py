@@ -7,7 +7,8 @@ dataset's metadata; the result is stored as the checkpoint's `data_ranges`:
     friction_angle_deg  [lo, hi]        from the tan(phi) feature
     cohesion_kpa        [lo, hi] | None from the c / 100 kPa feature (None: no cohesion input)
     domain_m            [width, height] the largest training domain
-    point_spacing_m     float           the lattice spacing of the training scenes
+    point_spacing_m     float           the lattice spacing of the training scenes (the spacing
+                                        every GNS command fills a scene at, Simulator.point_spacing)
     materials_per_scene [lo, hi]        distinct soil materials in one simulation
     source              str             where the numbers come from
 
@@ -40,7 +41,9 @@ def measure(materials, particle_types, meta: dict, radius: float, source: str) -
             c.append(soil_c)
         counts.append(len(np.unique(soil, axis=0)))
     bounds = np.asarray(meta["bounds"], dtype=float)
-    spacing = float(meta["cell_size"]) / 2 if "cell_size" in meta else radius / RADIUS_PER_SPACING
+    # the dataset's own spacing (2 x 2 points per cell), not the model's radius, which --radius may set apart
+    data_radius = float(meta.get("default_connectivity_radius", radius))  # m
+    spacing = float(meta["cell_size"]) / 2 if "cell_size" in meta else data_radius / RADIUS_PER_SPACING
     span = lambda parts: [float(min(p.min() for p in parts)), float(max(p.max() for p in parts))]  # noqa: E731
     return {
         "friction_angle_deg": span(phi) if phi else None,

@@ -43,16 +43,18 @@ class Observation:
         return moving * (1.0 + loss.front_weight * moved / max(float(moved.max()), 1e-12))
 
 
-def load_observation(spec: InverseSpec) -> Observation:
+def load_observation(spec: InverseSpec, scene_name: str = "the scene") -> Observation:
+    """The target at its observed frames, checked against the points of spec.scene (called
+    `scene_name` in errors, e.g. "the scene at the model's 5 m point spacing (10 m cells)")."""
     points = fill_points(spec.scene)
     if spec.target.trajectory is not None:
         traj = load_trajectory(spec.target.trajectory)
-        _check_same_points(traj, points.position, spec.target.trajectory)
+        _check_same_points(traj, points.position, spec.target.trajectory, scene_name)
         frames, steps = _frames_in_trajectory(spec, traj.n_frames)
         positions = traj.positions[list(frames)]
         true_values = _true_values(spec, traj)
     else:
-        positions, frames, steps = _observed_positions(spec, len(points))
+        positions, frames, steps = _observed_positions(spec, len(points), scene_name)
         true_values = None
     return Observation(
         frames=frames,
@@ -65,16 +67,16 @@ def load_observation(spec: InverseSpec) -> Observation:
     )
 
 
-def _check_same_points(traj: Trajectory, initial: np.ndarray, path: Path) -> None:
+def _check_same_points(traj: Trajectory, initial: np.ndarray, path: Path, scene_name: str) -> None:
     if traj.n_points != len(initial):
         raise InputError(
-            f"{path}: the target has {traj.n_points} points but the scene fills {len(initial)}; "
+            f"{path}: the target has {traj.n_points} points but {scene_name} fills {len(initial)}; "
             "the target must be a run of the same scene."
         )
     offset = float(np.abs(traj.positions[0] - initial).max())  # m
     if offset > 0.5:
         raise InputError(
-            f"{path}: the target's first frame is up to {offset:.3g} m away from the scene's points; "
+            f"{path}: the target's first frame is up to {offset:.3g} m away from the points of {scene_name}; "
             "the target must be a run of the same scene."
         )
 
@@ -107,7 +109,7 @@ def _steps(spec: InverseSpec, frames: tuple[int, ...]) -> int:
     return spec.steps
 
 
-def _observed_positions(spec: InverseSpec, n_points: int):
+def _observed_positions(spec: InverseSpec, n_points: int, scene_name: str):
     path = spec.target.positions
     if not path.is_file():
         raise InputError(f"{path}: no such observed-positions file.")
@@ -126,7 +128,7 @@ def _observed_positions(spec: InverseSpec, n_points: int):
     if positions.shape != (len(frames), n_points, 2):
         raise InputError(
             f"{path}: holds an array of shape {positions.shape}; expected ({len(frames)}, {n_points}, 2) "
-            "for the observed frames and the scene's points."
+            f"for the observed frames and the points of {scene_name}."
         )
     if not np.isfinite(positions).all():
         raise InputError(f"{path}: the observed positions contain NaN or infinite values.")

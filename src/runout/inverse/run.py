@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -51,6 +51,8 @@ def invert(
 ) -> InversionResult:
     """Back-calculate the spec's free parameters; write histories and figures to out_dir.
 
+    With the gns engine the scene is filled at the model's point spacing (a line to `log`
+    when its own cells differ), so the target must be a run of the scene at that spacing.
     A run killed part-way resumes when called again with the same arguments (force: start
     afresh). `log` receives one line per evaluation, `warn` each warning (e.g. a value
     outside the model's training range); `progress` shows a bar over each forward run."""
@@ -61,8 +63,12 @@ def invert(
     spec = load_inverse_spec(spec_path)
     chosen = check_iterations(plot_iterations, spec.optimiser.max_iterations)
     folder = check_folder(out_dir, "invert", _writes(starts), mode="resume", force=force)
-    observation = load_observation(spec)
-    evaluate, model_name = _evaluator(spec, observation, engine, model, device, fd_step, checkpoint, progress, warn)
+    simulator, filled = None, "the scene"
+    if engine == "gns":
+        simulator = _gns_model(model, device)
+        spec, filled = _at_model_spacing(spec, simulator, log)
+    observation = load_observation(spec, filled)
+    evaluate, model_name = _evaluator(spec, observation, engine, simulator, model, device, fd_step, checkpoint, progress, warn)
     claim(folder)
     info = RunInfo(digest=spec.digest, engine=engine, model=model_name, start=[])
     results = run_starts(
@@ -84,7 +90,25 @@ def _writes(starts: int) -> tuple[str, ...]:
     return tuple(f"start_{k:02d}" for k in range(starts)) + ("starts.json", "starts.csv", "starts.png")
 
 
-def _evaluator(spec, observation, engine, model, device, fd_step, checkpoint, progress, warn):
+def _gns_model(model, device: str):
+    from runout.inverse.forward import load_model
+
+    return load_model(None if model is None else Path(model), device)
+
+
+def _at_model_spacing(spec: InverseSpec, simulator, log: Log | None) -> tuple[InverseSpec, str]:
+    """The spec with its scene filled at the model's point spacing, and the words for that
+    scene in errors about the target (which must be a run of it)."""
+    from runout.gns.rollout import at_model_spacing
+
+    scene = at_model_spacing(spec.scene, simulator, f"the scene of {spec.source}", log)
+    cell = scene.domain.cell_size
+    same = cell == spec.scene.domain.cell_size
+    filled = "the scene" if same else f"the scene at the model's {simulator.point_spacing:g} m point spacing ({cell:g} m cells)"
+    return replace(spec, scene=scene), filled
+
+
+def _evaluator(spec, observation, engine, simulator, model, device, fd_step, checkpoint, progress, warn):
     if engine == "mpm-fd":
         from runout.inverse.mpm_fd import MpmFiniteDifference
         from runout.mpm.budget import check_budget
@@ -97,9 +121,8 @@ def _evaluator(spec, observation, engine, model, device, fd_step, checkpoint, pr
         return MpmAutodiff(spec, observation, device), ""
     from runout.gns.rollout import scene_at_rest
     from runout.gns.training_range import bound_warnings, range_warnings
-    from runout.inverse.forward import inverse_problem, load_model
+    from runout.inverse.forward import inverse_problem
 
-    simulator = load_model(None if model is None else Path(model), device)
     if warn is not None:
         lines = range_warnings(simulator, scene_at_rest(spec.scene), f"the scene of {spec.source}")
         for p in spec.free:

@@ -90,6 +90,14 @@ class Scene:
             raise InputError(f"frames = {frames} is outside the allowed range [1, {MAX_FRAMES}].")
         return replace(self, time=replace(self.time, frames=frames))
 
+    def with_point_spacing(self, spacing: float, source: str = "<scene>") -> "Scene":
+        """A copy whose cells are sized so that its points sit `spacing` m apart
+        (cell_size = spacing x points_per_cell), checked like a scene file."""
+        cell = round(spacing * self.domain.points_per_cell, 6)  # m
+        out = replace(self, domain=replace(self.domain, cell_size=cell))
+        validate_scene(out, source)
+        return out
+
     def with_materials(self, **changes: dict[str, float]) -> "Scene":
         """A copy with material properties changed, e.g. with_materials(sand={"cohesion": 20})."""
         mats = dict(self.materials)
