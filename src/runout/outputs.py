@@ -10,9 +10,9 @@ Every command that writes a folder records itself in OUT/.runout.json. Before an
 - a non-empty folder that runout did not write, even with --force (it is never emptied).
 
 What the same command does with its own folder is its mode: "replace" (mpm, rollout,
-demo, families: the new results replace the old), "resume" (generate, train, invert: the
-run continues; --force starts it afresh) or "add" (evaluate: each study adds its own
-subfolder). When results are replaced (--force on another command's folder, or mode
+compare, demo, families: the new results replace the old), "resume" (generate, train,
+invert: the run continues; --force starts it afresh) or "add" (evaluate: each study adds
+its own subfolder). When results are replaced (--force on another command's folder, or mode
 "replace"), `claim` first removes whatever in the folder the new run would not rewrite,
 so a folder never looks like a mix of runs.
 

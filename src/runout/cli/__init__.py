@@ -13,6 +13,7 @@ from runout.cli import inverse_commands  # noqa: F401
 from runout.cli import data_commands  # noqa: F401
 from runout.cli import demo_commands  # noqa: F401
 from runout.cli import evaluate_commands  # noqa: F401
+from runout.cli import compare_commands  # noqa: F401
 from runout.cli import validate_commands  # noqa: F401
 from runout.cli.exits import run
 

@@ -1,5 +1,6 @@
 """Animations of trajectories, all written by one writer (write_animation): .mp4 through
-ffmpeg or .gif through Pillow, chosen by the file name."""
+ffmpeg or .gif through Pillow, chosen by the file name. save_animation stacks trajectories,
+save_rollout_animation and save_side_by_side_animation set them beside each other."""
 
 from __future__ import annotations
 
@@ -59,8 +60,7 @@ def save_rollout_animation(
 ) -> Path:
     """The GNS rollout, beside the MPM when given; .mp4 if ffmpeg exists, else .gif."""
     trajs = [(gns, "GNS")] + ([(mpm, "MPM")] if mpm is not None else [])
-    n = min(t.n_frames for t, _ in trajs)
-    frames = np.unique(np.linspace(0, n - 1, min(n, max_frames)).round().astype(int))
+    frames = _evenly_spread(min(t.n_frames for t, _ in trajs), max_frames)
     fig = Figure(figsize=panel_size(gns, 1, len(trajs)))
     axes = fig.subplots(1, len(trajs), squeeze=False)
 
@@ -70,3 +70,27 @@ def save_rollout_animation(
 
     path = Path(path).with_name(animation_name(Path(path).stem))
     return write_animation(fig, draw, frames, path, fps, dpi=90 if path.suffix == ".mp4" else 70)
+
+
+def save_side_by_side_animation(
+    panels: list[tuple[Trajectory, str]], path: str | Path, fps: int = 15, max_frames: int = 80
+) -> Path:
+    """(trajectory, label) panels side by side, left to right on the same axes (e.g. MPM
+    beside GNS), points coloured by material; .mp4 if ffmpeg exists, else .gif."""
+    frames = _evenly_spread(min(t.n_frames for t, _ in panels), max_frames)
+    fig = Figure(figsize=figsize(panels[0][0].bounds, cols=len(panels), width=6.0 * len(panels)))
+    axes = fig.subplots(1, len(panels), squeeze=False)
+
+    def draw(f):
+        for ax, (traj, label) in zip(axes[0], panels):
+            ax.clear()
+            draw_materials(ax, traj, int(f), f"{label}: t = {f * traj.frame_dt:.2f} s", legend=False)
+        fig.tight_layout()
+
+    path = Path(path).with_name(animation_name(Path(path).stem))
+    return write_animation(fig, draw, frames, path, fps, dpi=90 if path.suffix == ".mp4" else 70)
+
+
+def _evenly_spread(n_frames: int, most: int) -> np.ndarray:
+    """At most `most` frame indices spread evenly from the first to the last."""
+    return np.unique(np.linspace(0, n_frames - 1, min(n_frames, most)).round().astype(int))

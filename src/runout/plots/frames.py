@@ -108,6 +108,19 @@ def save_comparison(
     return Path(path)
 
 
+def save_side_by_side(panels: list[tuple[Trajectory, str]], path: str | Path, frame: int = -1) -> Path:
+    """(trajectory, label) panels at one frame (-1: each one's last), left to right on the
+    same axes (e.g. MPM beside GNS), points coloured by material, the legend on the first."""
+    fig = Figure(figsize=figsize(panels[0][0].bounds, cols=len(panels), width=6.0 * len(panels)))
+    axes = fig.subplots(1, len(panels), squeeze=False)
+    for k, (ax, (traj, label)) in enumerate(zip(axes[0], panels)):
+        f = frame % traj.n_frames
+        draw_materials(ax, traj, f, f"{label}: frame {f} (t = {f * traj.frame_dt:.2f} s)", legend=k == 0)
+    fig.tight_layout()
+    fig.savefig(path, dpi=130)
+    return Path(path)
+
+
 def draw_scene(scene: Scene, path: str | Path) -> Path:
     """The scene's regions as filled polygons (no simulation)."""
     path = Path(path)
