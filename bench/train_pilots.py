@@ -1,0 +1,126 @@
+"""Training pilots at equal wall time, compared by validation rollouts (issue: CPU recipe).
+
+Each pilot is one `runout train` run of --minutes wall time (its own --max-hours) with a
+preset of settings; `--parallel 2` runs two at once with one thread each, so each pilot
+gets one core of a 2-core machine for the same time. Afterwards every pilot's last
+checkpoint rolls out the first --valid trajectories of the dataset's valid split over all
+their frames, and the table gives the mean |runout error| (relative, farthest soil point at
+the last frame) and the mean position MSE over the rollout (m^2), beside the steps reached.
+
+    python bench/train_pilots.py --data data/base8 --out runs/pilots --minutes 10 --parallel 2
+    python bench/train_pilots.py --data data/base8 --out runs/pilots --evaluate-only
+
+Results go to OUT/pilots.json and a Markdown table on stdout (pasted into docs/training.md).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+# name: extra `runout train` options
+W64 = ["--latent", "64", "--hidden", "64", "--message-passing-steps", "5", "--bf16"]
+PRESETS: dict[str, list[str]] = {
+    "w64-lr1e-4": [*W64, "--lr", "1e-4"],
+    "w64-lr4e-4": [*W64, "--lr", "4e-4"],
+    "w64-lr1e-3": [*W64, "--lr", "1e-3"],
+    "w64-lr4e-4-b4": [*W64, "--lr", "4e-4", "--batch-size", "4"],
+    "w64-lr4e-4-noise0.02": [*W64, "--lr", "4e-4", "--noise-std", "0.02"],
+    "w64-lr4e-4-fp32": ["--latent", "64", "--hidden", "64", "--message-passing-steps", "5", "--lr", "4e-4"],
+    "w128-lr4e-4": ["--latent", "128", "--hidden", "128", "--message-passing-steps", "5", "--bf16", "--lr", "4e-4"],
+    "w128-mp10-lr4e-4": ["--latent", "128", "--hidden", "128", "--message-passing-steps", "10", "--bf16", "--lr", "4e-4"],
+}
+
+
+def run_pilots(names: list[str], data: Path, out: Path, minutes: float, parallel: int) -> None:
+    threads = max(1, (os.cpu_count() or 2) // parallel)
+    env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
+    queue = list(names)
+    running: list[tuple[str, subprocess.Popen]] = []
+    while queue or running:
+        while queue and len(running) < parallel:
+            name = queue.pop(0)
+            run = out / name
+            resume = ["--resume"] if (run / "checkpoint.pt").exists() else []
+            cmd = [sys.executable, "-m", "runout", "train", "--data", str(data), "--out", str(run),
+                   "--max-hours", f"{minutes / 60:.6f}", "--valid-every", "0", "--save-every", "500",
+                   "--log-every", "50", *PRESETS[name], *resume]
+            out.mkdir(parents=True, exist_ok=True)
+            log = open(out / f"{name}.log", "a")  # beside the run folder, which runout owns
+            print(f"start {name}: {' '.join(cmd[2:])}", flush=True)
+            running.append((name, subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)))
+        time.sleep(5)
+        for item in list(running):
+            if item[1].poll() is not None:
+                print(f"done {item[0]} (exit {item[1].returncode})", flush=True)
+                running.remove(item)
+
+
+def evaluate(names: list[str], data: Path, out: Path, n_valid: int) -> list[dict]:
+    import numpy as np
+    import torch
+
+    from runout.dataset import split_trajectories
+    from runout.gns.checkpoint import load_simulator, read_checkpoint
+    from runout.gns.rollout import rollout_trajectory
+    from runout.metrics import compare
+
+    torch.set_num_threads(os.cpu_count() or 1)
+    truths = list(split_trajectories(data, "valid", n_valid))
+    rows = []
+    for name in names:
+        path = out / name / "checkpoint.pt"
+        if not path.exists():
+            continue
+        step = int(read_checkpoint(path)["step"])
+        simulator = load_simulator(path)
+        log = [json.loads(ln) for ln in (out / name / "log.jsonl").read_text().splitlines() if ln]
+        wall = max((r.get("wall_s", 0.0) for r in log), default=0.0)
+        t0 = time.perf_counter()
+        results = [compare(rollout_trajectory(simulator, t, t.n_frames, stop_speed=None), t) for t in truths]
+        rows.append({
+            "pilot": name, "options": " ".join(PRESETS[name]), "steps": step, "train_wall_s": wall,
+            "s_per_step": wall / max(step, 1),
+            "final_loss": float(np.mean([r["loss"] for r in log if "loss" in r][-10:])),
+            "valid_runout_error_mean_abs": float(np.mean([abs(r["runout_error"]) for r in results])),
+            "valid_position_mse_mean_m2": float(np.mean([r["position_mse_mean_m2"] for r in results])),
+            "valid_trajectories": len(results), "rollout_s": time.perf_counter() - t0,
+        })
+        print(json.dumps(rows[-1]), flush=True)
+    return rows
+
+
+def table(rows: list[dict]) -> str:
+    lines = ["| pilot | steps | s/step | last loss | valid runout error | valid position MSE (m²) |",
+             "|---|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['pilot']} | {r['steps']} | {r['s_per_step']:.3f} | {r['final_loss']:.3f} | "
+                     f"{100 * r['valid_runout_error_mean_abs']:.1f} % | {r['valid_position_mse_mean_m2']:.1f} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--data", type=Path, required=True)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--pilots", nargs="+", default=["w64-lr1e-4", "w64-lr4e-4", "w128-lr4e-4", "w64-lr4e-4-b4", "w64-lr1e-3", "w64-lr4e-4-noise0.02"],
+                    choices=sorted(PRESETS))
+    ap.add_argument("--minutes", type=float, default=10.0, help="wall time of each pilot")
+    ap.add_argument("--parallel", type=int, default=2, help="pilots at once (threads split between them)")
+    ap.add_argument("--valid", type=int, default=6, help="validation trajectories rolled out per pilot")
+    ap.add_argument("--evaluate-only", action="store_true")
+    args = ap.parse_args()
+    if not args.evaluate_only:
+        run_pilots(args.pilots, args.data, args.out, args.minutes, args.parallel)
+    rows = evaluate(args.pilots, args.data, args.out, args.valid)
+    (args.out / "pilots.json").write_text(json.dumps(rows, indent=2))
+    print(table(rows))
+
+
+if __name__ == "__main__":
+    main()
