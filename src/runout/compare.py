@@ -34,7 +34,7 @@ from runout.errors import InputError, RunFailed
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import at_model_spacing, rollout_trajectory, scene_at_rest
 from runout.gns.training_range import range_warnings
-from runout.metrics import absolute_percentage_error, deposit_iou, mound_axis, position_mse, side_runouts
+from runout.metrics import absolute_percentage_error, at_common_times, deposit_iou, mound_axis, position_mse, side_runouts
 from runout.mpm.budget import check_budget
 from runout.mpm.cache import MpmCache
 from runout.outputs import check_folder, claim
@@ -63,8 +63,8 @@ def run_compare(
     folder = check_folder(out, "compare", COMPARE_FILES + (animation_name(),), force=force)
     simulator = load_simulator(model, device)
     scene = at_model_spacing(load_scene(scene_path), simulator, str(scene_path), log)
-    scene = _with_frames(scene, frames, simulator.schema.history, scene_path)
-    start = scene_at_rest(scene, simulator.schema.history)
+    scene = _with_frames(scene, frames, simulator.window_frames, scene_path)
+    start = scene_at_rest(scene, simulator.window_frames)
     if not start.soil.any():
         raise InputError(f"{scene_path}: every region is fixed, so there is no soil whose runout could be compared.")
     for line in range_warnings(simulator, start, str(scene_path)):
@@ -89,11 +89,12 @@ def run_compare(
     return Comparison(metrics, files)
 
 
-def _with_frames(scene: Scene, frames: int | None, history: int, source: Path) -> Scene:
+def _with_frames(scene: Scene, frames: int | None, window: int, source: Path) -> Scene:
+    """The scene with `frames` frames (None: its own), more than the model's window spans."""
     scene = scene.with_frames(frames) if frames is not None else scene
-    if scene.time.frames <= history:
+    if scene.time.frames <= window:
         where = "--frames" if frames is not None else f"{source}: time.frames"
-        raise InputError(f"{where} = {scene.time.frames} must exceed the model's {history} input frames.")
+        raise InputError(f"{where} = {scene.time.frames} must exceed the model's {window} input frames.")
     return scene
 
 
@@ -112,7 +113,9 @@ def _mpm(scene: Scene, cache: MpmCache, device: str, progress: bool, source: Pat
 
 def comparison_metrics(truth: Trajectory, predicted: Trajectory, cell: float) -> dict:
     """Fronts about the mound's axis, deposit overlap on cells of `cell` m and position MSE
-    of a prediction (GNS) against its truth (MPM), read at the final frame."""
+    of a prediction (GNS) against its truth (MPM), read at the final time both have
+    (at_common_times: a GNS of frame stride K against the MPM's frames 0, K, 2K, ...)."""
+    predicted, truth = at_common_times(predicted, truth)
     centre = mound_axis(truth)
     (mpm_left, mpm_right), (gns_left, gns_right) = side_runouts(truth, centre), side_runouts(predicted, centre)
     mse = position_mse(predicted, truth)
@@ -138,8 +141,9 @@ def _wall_times(mpm: float | None, gns: float, cached: bool) -> dict:
 
 
 def _write(out: Path, truth: Trajectory, predicted: Trajectory, metrics: dict, feature_width: int) -> list[Path]:
-    panels = [(truth, "MPM"), (predicted, "GNS")]
     save_trajectory(predicted, out / "gns", feature_width)
+    truth, predicted = at_common_times(truth, predicted)
+    panels = [(truth, "MPM"), (predicted, "GNS")]
     final = save_side_by_side(panels, out / "final.png")
     animation = save_side_by_side_animation(panels, out / "animation")
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))

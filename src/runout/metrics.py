@@ -10,13 +10,38 @@ and one normalisation of either, L^n = (L_f - L_0) / L_0 (normalised_runout);
 normalised_extent(traj) is that of the extent from the first to the last frame. A mound's
 two fronts are side_runouts about its axis (mound_axis); deposit_iou compares where two
 deposits lie, cell by cell.
+
+Two trajectories are compared at the times both have (at_common_times): a GNS of frame
+stride K, one frame every K x 0.0375 s, against the MPM's frames 0, K, 2K, ...
 """
 
 from __future__ import annotations
 
+import math
+from dataclasses import replace
+
 import numpy as np
 
+from runout.errors import InputError
 from runout.trajectory import Trajectory
+
+
+def at_common_times(a: Trajectory, b: Trajectory) -> tuple[Trajectory, Trajectory]:
+    """(a, b) at the times both have: the one with the shorter frame interval subsampled to
+    the other's (Trajectory.every), then both cut to the frames they share. InputError when
+    neither interval is a whole multiple of the other."""
+    ratio = a.frame_dt / b.frame_dt
+    stride = round(max(ratio, 1 / ratio))
+    if not math.isclose(max(ratio, 1 / ratio), stride, rel_tol=1e-6):
+        raise InputError(f"frames {a.frame_dt:g} s apart cannot be compared with frames {b.frame_dt:g} s apart; "
+                         "one interval must be a whole multiple of the other.")
+    a, b = (a, b.every(stride)) if ratio > 1 else (a.every(stride), b)
+    t = min(a.n_frames, b.n_frames)
+    return _first(a, t), _first(b, t)
+
+
+def _first(traj: Trajectory, frames: int) -> Trajectory:
+    return traj if traj.n_frames == frames else replace(traj, positions=traj.positions[:frames], info=dict(traj.info))
 
 
 def runout_front(traj: Trajectory, frame: int = -1) -> float:
@@ -98,11 +123,11 @@ def r_squared(predicted, truth) -> float:
 
 
 def position_mse(predicted: Trajectory, truth: Trajectory) -> np.ndarray:
-    """[T] mean squared position error of the soil points per frame (m^2), over the frames
-    both trajectories have."""
-    t = min(predicted.n_frames, truth.n_frames)
+    """[T] mean squared position error of the soil points per frame (m^2), at the times both
+    trajectories have (at_common_times)."""
+    predicted, truth = at_common_times(predicted, truth)
     soil = truth.soil
-    diff = predicted.positions[:t, soil].astype(np.float64) - truth.positions[:t, soil]
+    diff = predicted.positions[:, soil].astype(np.float64) - truth.positions[:, soil]
     return (diff**2).sum(axis=-1).mean(axis=-1)
 
 
@@ -110,8 +135,9 @@ def compare(predicted: Trajectory, truth: Trajectory) -> dict:
     """How well a prediction (a GNS rollout) follows its truth (the MPM): position MSE (final
     and mean over time), extent runouts, their normalised runouts from the truth's initial
     extent and the relative runout error (L_f,GNS - L_f,MPM) / L_f,MPM, read at the last
-    frame the two share."""
-    t = min(predicted.n_frames, truth.n_frames)
+    time the two share (at_common_times; frames_compared counts the shared times)."""
+    predicted, truth = at_common_times(predicted, truth)
+    t = truth.n_frames
     mse = position_mse(predicted, truth)
     runout_gns, runout_mpm = runout_extent(predicted, t - 1), runout_extent(truth, t - 1)
     initial = runout_extent(truth, 0)
@@ -128,11 +154,11 @@ def compare(predicted: Trajectory, truth: Trajectory) -> dict:
 
 
 def displacement_error(predicted: Trajectory, truth: Trajectory) -> np.ndarray:
-    """[T, S] distance (m) between predicted and true positions of the S soil points, over
-    the frames both trajectories have."""
-    t = min(predicted.n_frames, truth.n_frames)
+    """[T, S] distance (m) between predicted and true positions of the S soil points, at the
+    times both trajectories have (at_common_times)."""
+    predicted, truth = at_common_times(predicted, truth)
     soil = truth.soil
-    return np.linalg.norm(predicted.positions[:t, soil].astype(float) - truth.positions[:t, soil], axis=-1)
+    return np.linalg.norm(predicted.positions[:, soil].astype(float) - truth.positions[:, soil], axis=-1)
 
 
 def final_displacement(traj: Trajectory) -> np.ndarray:

@@ -1,7 +1,8 @@
 """One GNS training loop for CPU, one GPU and many GPUs (torchrun + DistributedDataParallel).
 
-Each step draws `batch_size` windows per process, perturbs their input positions with
-random-walk noise (velocity std 0.067 m/s = 0.067 x 0.0375 = 2.5e-3 m per frame),
+Each step draws `batch_size` windows per process (at the frame stride: positions K frames
+apart), perturbs their input positions with random-walk noise (velocity std 0.067 m/s =
+0.067 x 0.0375 x K = 2.5e-3 K m per step),
 corrects the target acceleration, and minimises the squared error of the normalised
 acceleration over the non-kinematic points with Adam and the paper's learning rate
 lr(i) = (1e-4 - 1e-6) 0.1^(i / 5e6) + 1e-6. The random numbers of a step come from
@@ -34,6 +35,7 @@ from runout.gns.checkpoint import (
 )
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations
+from runout.gns.schema import SCHEMA_LIMITS, FeatureSchema
 from runout.gns.simulator import Case, NetworkConfig, Normalisation, Simulator
 from runout.gns.training_range import measure as measure_ranges
 from runout.metrics import compare
@@ -69,6 +71,7 @@ class TrainConfig:
     lr_step_offset: int = 0  # learning-rate schedule continues from the base model's step
     max_hours: float = 0.0  # wall-clock limit of this run (one chunk of a campaign); 0: none
     radius: float | None = None  # connectivity radius in m (None: the dataset's default)
+    frame_stride: int | None = None  # dataset frames per GNS step (None: 1, or the checkpoint's on --resume / --init)
 
 
 def learning_rate(step: int, cfg: TrainConfig) -> float:
@@ -119,6 +122,7 @@ def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
     meta = read_metadata(cfg.data)
     data = Simulations(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"))
     simulator, state, cfg = _build(cfg, meta, data)
+    data = data.with_stride(simulator.frame_stride)
     if state is None or simulator.data_ranges is None:  # new data: record what the model learns from
         simulator.data_ranges = measure_ranges(
             [m.cpu().numpy() for m in data.material], [t.cpu().numpy() for t in data.particle_type],
@@ -231,27 +235,55 @@ def _generators(seed: int, step: int, ctx: Context) -> tuple[torch.Generator, to
 def _build(cfg: TrainConfig, meta: dict, data: Simulations):
     """The simulator to train, the resumed training state (or None) and the settings."""
     out = Path(cfg.out)
+    _check_stride(cfg.frame_stride)
     if cfg.resume:
         path = out / CHECKPOINT
         ckpt = read_checkpoint(path)
         simulator = simulator_from_checkpoint(ckpt, path)
+        if cfg.frame_stride not in (None, simulator.frame_stride):
+            raise InputError(
+                f"{path} was trained at --frame-stride {simulator.frame_stride}, so it resumes only at that stride; "
+                f"leave --frame-stride out or start a new run in another --out."
+            )
         check_schema(simulator, data.schema(simulator.schema), path, data.path)
-        return simulator, ckpt, replace(cfg, lr_step_offset=ckpt["train"]["lr_step_offset"])
+        offset = ckpt["train"]["lr_step_offset"]
+        return simulator, ckpt, replace(cfg, lr_step_offset=offset, frame_stride=simulator.frame_stride)
     if (out / CHECKPOINT).exists():
         raise InputError(f"{out / CHECKPOINT}: already exists; pass --resume to continue it or choose another --out.")
     if cfg.init is not None:
         base = read_checkpoint(cfg.init)
         simulator = simulator_from_checkpoint(base, cfg.init)
+        if cfg.frame_stride not in (None, simulator.frame_stride):
+            raise InputError(
+                f"{cfg.init} was trained at --frame-stride {simulator.frame_stride} and fine-tuning keeps the base "
+                f"model's stride; leave --frame-stride {cfg.frame_stride} out."
+            )
         wanted = data.schema(simulator.schema)
         if wanted.material_features != simulator.schema.material_features:
             widen_material_features(simulator, wanted.material_features, cfg.init)
         check_schema(simulator, wanted, cfg.init, data.path)
-        return simulator, None, replace(cfg, lr_step_offset=int(base.get("step", 0)) + base.get("train", {}).get("lr_step_offset", 0))
-    stats = Normalisation.from_metadata(meta, cfg.noise_velocity_std * float(meta.get("dt", FRAME_DT)))
-    schema = data.schema()
+        offset = int(base.get("step", 0)) + base.get("train", {}).get("lr_step_offset", 0)
+        return simulator, None, replace(cfg, lr_step_offset=offset, frame_stride=simulator.frame_stride)
+    stride = cfg.frame_stride or 1
+    noise = cfg.noise_velocity_std * float(meta.get("dt", FRAME_DT)) * stride  # m/s -> m per step of `stride` frames
+    stats = Normalisation.from_metadata(_statistics(meta, data, stride), noise)
+    schema = data.schema(FeatureSchema(frame_stride=stride))
     torch.manual_seed(cfg.seed)
     radius = cfg.radius if cfg.radius is not None else float(meta["default_connectivity_radius"])
-    return Simulator(schema, stats, radius, cfg.network), None, cfg
+    return Simulator(schema, stats, radius, cfg.network), None, replace(cfg, frame_stride=stride)
+
+
+def _check_stride(stride: int | None) -> None:
+    lo, hi = SCHEMA_LIMITS["frame_stride"]
+    if stride is not None and (isinstance(stride, bool) or not isinstance(stride, int) or not lo <= stride <= hi):
+        raise InputError(f"--frame-stride = {stride!r} is outside the allowed range [{lo}, {hi}] (a whole number).")
+
+
+def _statistics(meta: dict, data: Simulations, stride: int) -> dict:
+    """The normalisation statistics of a new run: metadata.json's (1-frame differences, as the
+    generator measured them) at stride 1, else those of the stride's differences measured now
+    on the training data."""
+    return meta if stride == 1 else data.with_stride(stride).moments()
 
 
 def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: float) -> None:

@@ -10,7 +10,7 @@ a material table, and the domain bounds. On disk a trajectory is the public GNS 
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -45,6 +45,13 @@ class Trajectory:
     def soil(self) -> np.ndarray:
         """Mask of the points that move (not kinematic)."""
         return self.particle_type != PARTICLE_TYPE_KINEMATIC
+
+    def every(self, stride: int) -> "Trajectory":
+        """Frames 0, stride, 2 stride, ... (frame_dt x stride; the positions are a view): e.g.
+        an MPM run at the times a GNS of frame stride `stride` steps through."""
+        if stride == 1:
+            return self
+        return replace(self, positions=self.positions[::stride], frame_dt=self.frame_dt * stride, info=dict(self.info))
 
     def first_nonfinite_frame(self) -> int | None:
         """The first frame holding a NaN or infinite position (a diverged run), or None."""

@@ -30,6 +30,7 @@ def train(
     lr_decay_steps: float = typer.Option(5e6, "--lr-decay-steps", help="D: steps over which the learning rate falls tenfold (paper: 5e6; fit it to the budget)."),
     max_hours: float = typer.Option(0.0, "--max-hours", help="Wall-clock hours for this run (one chunk); then save and stop, exit 0 (0: no limit)."),
     radius: float = typer.Option(None, "--radius", help="Connectivity radius in m (default: the dataset's, 2.3 point spacings); new runs only."),
+    frame_stride: int = typer.Option(None, "--frame-stride", help="Dataset frames per GNS step, 1-16 (default 1; --resume and --init keep the checkpoint's)."),
     noise_std: float = typer.Option(0.067, "--noise-std", help="Velocity noise std in m/s (converted to m per frame with the dataset's dt)."),
     latent: int = typer.Option(128, "--latent", help="Latent size of nodes and edges."),
     hidden: int = typer.Option(128, "--hidden", help="Units of each hidden MLP layer."),
@@ -46,6 +47,7 @@ def train(
 ) -> None:
     """Train the GNS on an MPM dataset (one process, or many under torchrun). Ctrl-C saves
     the checkpoint of the last whole step (exit 130); --resume continues exactly."""
+    from runout.gns.schema import SCHEMA_LIMITS
     from runout.gns.simulator import NETWORK_LIMITS, NetworkConfig
     from runout.outputs import check_folder, claim
     from runout.train import BEST, CHECKPOINT, LOG, TrainConfig, train as run_training
@@ -63,6 +65,7 @@ def train(
     check_range("--lr-decay-steps", lr_decay_steps, 1.0, 1e12)
     check_range("--max-hours", max_hours, 0.0, 1000.0, " h")
     check_range("--radius", radius, 0.1, 1000.0, " m")
+    check_range("--frame-stride", frame_stride, *SCHEMA_LIMITS["frame_stride"])
     if not 0 < lr <= 1:
         raise InputError(f"--lr = {lr:g} is outside the allowed range (0, 1].")
     folder = check_folder(out, "train", (CHECKPOINT, BEST, LOG, "tensorboard"), mode="resume", force=force)
@@ -75,7 +78,7 @@ def train(
         save_every=save_every, log_every=log_every, valid_every=valid_every,
         valid_trajectories=valid_trajectories, valid_frames=valid_frames,
         checkpoint_layers=checkpoint_layers, bf16=bf16, lr_decay_steps=lr_decay_steps,
-        max_hours=max_hours, radius=radius,
+        max_hours=max_hours, radius=radius, frame_stride=frame_stride,
     )
     run_training(cfg)
 
@@ -85,7 +88,7 @@ def rollout(
     model: Path = typer.Option(..., "--model", help="GNS checkpoint (.pt)."),
     source: Path = typer.Argument(..., help="SCENE.toml/.json (filled at the model's point spacing, starts at rest), a trajectory folder from `runout mpm`, or a dataset folder."),
     out: Path = typer.Option(..., "--out", help="Output folder: trajectory.npz, metadata.json, metrics.json, pictures, animation."),
-    frames: int = typer.Option(0, "--frames", help="Frames to produce, the first 6 included (0: the scene's or ground truth's count)."),
+    frames: int = typer.Option(0, "--frames", help="Frames (of the data's dt) to cover, the first 6 included (0: the scene's or ground truth's count); a model of frame stride K writes one every K."),
     stop_speed: float = typer.Option(0.05, "--stop-speed", help="Stop once every soil point moves slower than this (m/s); 0: never stop early."),
     split: str = typer.Option("test", "--split", help="For a dataset folder: which split file."),
     index: int = typer.Option(0, "--index", help="For a dataset folder: which simulation of the split."),
@@ -111,8 +114,8 @@ def rollout(
     for line in warnings:
         typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW)
     n_frames = frames or (truth.n_frames if truth is not None else initial.info.get("frames", 480))
-    if n_frames <= simulator.schema.history:
-        raise InputError(f"--frames = {n_frames} must exceed the {simulator.schema.history} initial frames.")
+    if n_frames <= simulator.window_frames:
+        raise InputError(f"--frames = {n_frames} must exceed the {simulator.window_frames} initial frames.")
     check_rollout_memory(initial.n_points, n_frames, device)
     for line in range_warnings(simulator, initial):
         typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW)

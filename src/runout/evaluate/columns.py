@@ -31,7 +31,9 @@ from runout.evaluate.model_card import model_card
 from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_file, column_scene, model_scene
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
-from runout.metrics import absolute_percentage_error, coefficient_of_variation, normalised_runout, r_squared, runout_front
+from runout.metrics import (
+    absolute_percentage_error, at_common_times, coefficient_of_variation, normalised_runout, r_squared, runout_front,
+)
 from runout.mpm.cache import MpmCache
 from runout.trajectory import Trajectory, load_trajectory, save_trajectory
 
@@ -90,6 +92,7 @@ def run_columns(model: Path, out: Path, grid: ColumnGrid, run: EngineRun) -> dic
         predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None)
         wall = time.perf_counter() - start
         save_trajectory(predicted, folder / "gns" / case.name, simulator.schema.material_width)
+        truth, predicted = at_common_times(truth, predicted)  # the MPM at the GNS's times (frame stride)
         rows.append(case_result(case, truth, predicted, scene.domain.point_spacing / 2, wall, mpm_dir.name))
     write_csv(rows, folder / "cases.csv")
     summary = summarise(rows, grid, model)
@@ -168,5 +171,5 @@ def draw_outputs(rows: list[CaseResult], folder: Path, cache: MpmCache, scenes) 
             shutil.copyfile(drawn[row.case], path)
             continue
         truth = cache.load(by_name[row.case], progress=False)
-        draw_evolution(truth, load_trajectory(folder / "gns" / row.case), row, q, path)
+        draw_evolution(*at_common_times(truth, load_trajectory(folder / "gns" / row.case)), row, q, path)
         drawn[row.case] = path

@@ -3,7 +3,7 @@
 At chosen frames (80, 200 and the last), each soil point's GNS velocity v_pred and MPM
 velocity v_true (m/s, over the frame interval ending there) give the error |v_pred - v_true|.
 The training velocity distribution is the model's own normalisation statistics (vel_mean,
-vel_std in m per frame, converted to m/s); a point lies outside the k-sigma ellipse when
+vel_std in m per model step, converted to m/s); a point lies outside the k-sigma ellipse when
 ((v_x - m_x) / s_x)^2 + ((v_y - m_y) / s_y)^2 > k^2 (the statistics are per axis, so the
 ellipses are axis-aligned).
 
@@ -24,20 +24,22 @@ from runout.evaluate.model_card import model_card
 from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_file, column_scene, model_scene
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
-from runout.metrics import velocities
+from runout.metrics import at_common_times, velocities
 from runout.trajectory import Trajectory, save_trajectory
 
 PAPER_CASE = ColumnCase(aspect=2.0, phi=11.25, cohesion=10.0)
 PAPER_FRAMES = (80, 200)  # and the last frame
 
 
-def diagnostic_frames(n_frames: int) -> list[int]:
-    """Frames 80 and 200 when the run has them, and the last frame (all >= 1)."""
-    return sorted({f for f in PAPER_FRAMES if f < n_frames} | {n_frames - 1})
+def diagnostic_frames(n_frames: int, stride: int = 1) -> list[int]:
+    """Frames 80 and 200 when the run has them, and the last frame (all >= 1), as indices of
+    a run with one frame every `stride` dataset frames (the nearest)."""
+    return sorted({round(f / stride) for f in PAPER_FRAMES if round(f / stride) < n_frames} | {n_frames - 1})
 
 
 def training_velocity(simulator, frame_dt: float) -> tuple[np.ndarray, np.ndarray]:
-    """Mean and standard deviation (m/s) of the training velocities, per axis."""
+    """Mean and standard deviation (m/s) of the training velocities, per axis; frame_dt is
+    the model's step (s), frame_stride dataset frames."""
     return np.asarray(simulator.stats.vel_mean) / frame_dt, np.asarray(simulator.stats.vel_std) / frame_dt
 
 
@@ -80,8 +82,9 @@ def run_diagnostics(model: Path, out: Path, run: EngineRun, case: ColumnCase = P
     truth = run.cache.load(scene, run.device, run.progress)
     predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None, progress=run.progress)
     save_trajectory(predicted, folder / "gns", simulator.schema.material_width)
-    mean, std = training_velocity(simulator, truth.frame_dt)
-    chosen = diagnostic_frames(truth.n_frames)
+    truth, predicted = at_common_times(truth, predicted)  # the MPM at the GNS's times (frame stride)
+    mean, std = training_velocity(simulator, predicted.frame_dt)
+    chosen = diagnostic_frames(truth.n_frames, simulator.frame_stride)
     draw_diagnostics(truth, predicted, chosen, mean, std, case, folder / "velocity_diagnostics.png")
     summary = {
         "study": "diagnostics",

@@ -20,16 +20,18 @@ class ModelCard:
     material_features: list[str]
     parameters: int
     network: dict
+    frame_stride: int = 1  # dataset frames per GNS step (summaries written before it: 1)
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     def sentence(self) -> str:
         trained = "untrained (saved without a training run)" if self.steps is None else f"{self.steps:,} training steps"
+        stride = f", frame stride {self.frame_stride}" if self.frame_stride > 1 else ""
         base = f" after {self.base_steps:,} base steps" if self.base_steps else ""
         data = f" on {self.training_data}" if self.training_data else ""
         return (f"`{self.path}` (sha256 {self.sha256}…, {self.parameters:,} parameters, material inputs "
-                f"[{', '.join(self.material_features)}]): {trained}{base}{data}.")
+                f"[{', '.join(self.material_features)}]{stride}): {trained}{base}{data}.")
 
 
 def model_card(path: Path) -> ModelCard:
@@ -45,4 +47,5 @@ def model_card(path: Path) -> ModelCard:
         material_features=list(ckpt["schema"]["material_features"]),
         parameters=sum(v.numel() for k, v in ckpt["model"].items() if not k.endswith(("_mean", "_scale"))),
         network=dict(ckpt["network"]),
+        frame_stride=int(ckpt["schema"].get("frame_stride", 1)),
     )

@@ -26,16 +26,17 @@ from runout.evaluate.scenes import EXAMPLES, model_scene, scaled
 from runout.evaluate.slope_figures import draw_displacement_error, draw_fields
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
-from runout.metrics import absolute_percentage_error, displacement_error, mound_axis, side_runouts
+from runout.metrics import absolute_percentage_error, at_common_times, displacement_error, mound_axis, side_runouts
 from runout.trajectory import Trajectory, save_trajectory
 
 SLOPE_SCENE = "four_layer_slope.toml"
 PAPER_FRAMES = (0, 80, 180)  # and the last frame
 
 
-def snapshot_frames(n_frames: int) -> list[int]:
-    """The paper's frames 0, 80, 180 that the run has, and its last frame."""
-    return sorted({f for f in PAPER_FRAMES if f < n_frames} | {n_frames - 1})
+def snapshot_frames(n_frames: int, stride: int = 1) -> list[int]:
+    """The paper's frames 0, 80, 180 that the run has, and its last frame, as indices of a
+    run with one frame every `stride` dataset frames (the nearest)."""
+    return sorted({round(f / stride) for f in PAPER_FRAMES if round(f / stride) < n_frames} | {n_frames - 1})
 
 
 def run_slope(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLES, frames: int | None = None,
@@ -52,9 +53,10 @@ def run_slope(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLES,
     predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None, progress=run.progress)
     gns_wall = time.perf_counter() - start
     save_trajectory(predicted, folder / "gns", simulator.schema.material_width)
+    truth, predicted = at_common_times(truth, predicted)  # the MPM at the GNS's times (frame stride)
     summary = summarise(truth, predicted, mound_axis(truth), gns_wall, run.device, model)
     summary["scale"] = scale
-    draw_fields(truth, predicted, snapshot_frames(truth.n_frames), folder)
+    draw_fields(truth, predicted, snapshot_frames(truth.n_frames, simulator.frame_stride), folder)
     draw_displacement_error(truth, predicted, folder / "displacement_error.png")
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary

@@ -1,5 +1,8 @@
 """Autoregressive GNS rollouts: differentiable tensors in, tensors out; Trajectory in, out.
 
+A model of frame stride K steps K dataset frames at a time: `rollout` works in its steps,
+`rollout_trajectory` in dataset frames (its window is the start's frames 0, K, ...,
+(history - 1) K, and it returns one frame every K, frame_dt K times the start's).
 Kinematic points (type 3) keep their given positions; soil points are clamped into the
 domain after every step (the rigid walls); a non-finite position stops the run with
 RolloutDiverged. With `checkpoint=True` each step is recomputed in the backward pass
@@ -23,7 +26,7 @@ from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
 
 CHECK_EVERY = 10  # steps between host checks for NaN and for a stopped flow
-MIN_FRAMES_BEFORE_STOP = 40  # frames: a slope at rest needs time to start failing
+MIN_FRAMES_BEFORE_STOP = 40  # dataset frames: a slope at rest needs time to start failing
 
 
 class RolloutDiverged(RunFailed):
@@ -41,12 +44,13 @@ def rollout(
     progress: bool = False,
     stop_speed: float | None = None,
 ) -> torch.Tensor:
-    """Positions [history + steps, N, 2] (m) from initial_positions [history, N, 2] (m).
+    """Positions [history + steps, N, 2] (m) from initial_positions [history, N, 2] (m),
+    one per model step (frame_stride dataset frames).
 
     particle_type [N] (3 = kinematic), material [N, k] (may require grad), bounds
     [[x_lo, x_hi], [y_lo, y_hi]] (m). Differentiable w.r.t. material and the model.
-    stop_speed (m per frame): stop early once every soil point moved less than this per
-    frame over the last CHECK_EVERY frames (never before MIN_FRAMES_BEFORE_STOP frames).
+    stop_speed (m per step): stop early once every soil point moved less than this per
+    step over the last CHECK_EVERY steps (never before MIN_FRAMES_BEFORE_STOP dataset frames).
     """
     device = simulator.vel_mean.device
     window = initial_positions.to(device).transpose(0, 1)  # [N, history, 2]
@@ -54,6 +58,7 @@ def rollout(
     material = material.to(device)
     case = Case.of(particle_type, torch.as_tensor(bounds, dtype=window.dtype, device=device))
     frames = list(window.unbind(1))
+    min_frames = math.ceil(MIN_FRAMES_BEFORE_STOP / simulator.frame_stride)  # in steps
     for step in tqdm(range(n_steps), disable=not progress, desc="GNS rollout", unit="step"):
         if checkpoint and torch.is_grad_enabled():
             nxt = recompute_in_backward(simulator.step, window, particle_type, material, case, use_reentrant=False)
@@ -62,12 +67,12 @@ def rollout(
         frames.append(nxt)
         window = torch.cat([window[:, 1:], nxt[:, None]], dim=1)
         if (step + 1) % CHECK_EVERY == 0 or step + 1 == n_steps:
-            if _check(frames, case, step, stop_speed):
+            if _check(frames, case, step, stop_speed, min_frames):
                 break
     return torch.stack(frames)
 
 
-def _check(frames, case: Case, step, stop_speed) -> bool:
+def _check(frames, case: Case, step, stop_speed, min_frames) -> bool:
     """Raise on NaN; True when the flow has stopped (one host sync per CHECK_EVERY steps)."""
     recent = torch.stack(frames[-CHECK_EVERY - 1:]).detach()
     soil = case.movable
@@ -78,7 +83,7 @@ def _check(frames, case: Case, step, stop_speed) -> bool:
             f"GNS rollout produced non-finite positions by step {step + 1}; the model is outside "
             "what it was trained on (check the material features, domain and radius)."
         )
-    return stop_speed is not None and len(frames) >= MIN_FRAMES_BEFORE_STOP and fastest < stop_speed
+    return stop_speed is not None and len(frames) >= min_frames and fastest < stop_speed
 
 
 def material_tensor(simulator: Simulator, traj: Trajectory) -> torch.Tensor:
@@ -93,32 +98,39 @@ def rollout_trajectory(
     stop_speed: float | None = 0.05,
     progress: bool = False,
 ) -> Trajectory:
-    """GNS trajectory of n_frames frames (including the first `history`) starting from the
-    first frames of `initial`; stop_speed in m/s (None: run all frames)."""
-    history = simulator.schema.history
-    per_frame = None if stop_speed is None else stop_speed * initial.frame_dt  # m/s -> m/frame
+    """GNS trajectory over n_frames frames of `initial` (its frame_dt; the window included),
+    starting from `initial`'s frames 0, K, ..., (history - 1) K for a model of frame stride K:
+    ceil((n_frames - 1) / K) + 1 frames K x initial.frame_dt apart, the last at or beyond
+    frame n_frames - 1; stop_speed in m/s (None: run all frames)."""
+    history, stride = simulator.schema.history, simulator.frame_stride
+    start = initial.every(stride)
+    if start.n_frames < history:
+        raise InputError(f"{initial.name} has {initial.n_frames} frames, fewer than the {simulator.window_frames} "
+                         f"that the model's window of {history} positions at frame stride {stride} spans.")
+    per_step = None if stop_speed is None else stop_speed * start.frame_dt  # m/s -> m per step
     with torch.no_grad():
         positions = rollout(
             simulator,
-            torch.from_numpy(np.ascontiguousarray(initial.positions[:history])),
+            torch.from_numpy(np.ascontiguousarray(start.positions[:history])),
             torch.from_numpy(initial.particle_type),
             material_tensor(simulator, initial),
-            max(n_frames - history, 0),
+            max(math.ceil((n_frames - 1) / stride) + 1 - history, 0),
             initial.bounds,
             progress=progress,
-            stop_speed=per_frame,
+            stop_speed=per_step,
         )
     return Trajectory(
         positions.cpu().numpy().astype(np.float32), initial.particle_type, initial.material_id,
-        initial.materials, initial.frame_dt, initial.bounds, initial.name,
-        {"engine": "gns", "frames_requested": n_frames},
+        initial.materials, start.frame_dt, initial.bounds, initial.name,
+        {"engine": "gns", "frames_requested": n_frames, "frame_stride": stride},
     )
 
 
-def scene_at_rest(scene: Scene, history: int = HISTORY) -> Trajectory:
-    """`history` identical frames of the scene's filled points: a start from rest."""
+def scene_at_rest(scene: Scene, frames: int = HISTORY) -> Trajectory:
+    """`frames` identical frames of the scene's filled points: a start from rest (pass the
+    model's Simulator.window_frames, so that its window reads `history` of them)."""
     points = fill_points(scene)
-    positions = np.repeat(points.position[None].astype(np.float32), history, axis=0)
+    positions = np.repeat(points.position[None].astype(np.float32), frames, axis=0)
     return trajectory_for_scene(scene, positions, points.particle_type, points.material_id)
 
 

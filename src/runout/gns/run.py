@@ -13,7 +13,7 @@ from runout.gns.checkpoint import check_schema
 from runout.gns.rollout import at_model_spacing, scene_at_rest
 from runout.gns.schema import material_names_for_width
 from runout.gns.simulator import Simulator
-from runout.metrics import compare, normalised_extent, position_mse, runout_extent
+from runout.metrics import at_common_times, compare, normalised_extent, position_mse, runout_extent
 from runout.plots import save_error_plot, save_rollout_animation, save_snapshots
 from runout.scene import Scene, load_scene
 from runout.trajectory import Trajectory, load_trajectory, save_trajectory
@@ -29,7 +29,7 @@ def initial_state(
     its own cells differ)."""
     if source.is_file():
         scene = at_model_spacing(load_scene(source), simulator, str(source), log)
-        start = scene_at_rest(scene, simulator.schema.history)
+        start = scene_at_rest(scene, simulator.window_frames)
         start.info["frames"] = scene.time.frames
         return start, None, _ignored_cohesion(scene, simulator)
     if (source / "trajectory.npz").is_file():
@@ -68,6 +68,7 @@ def write_rollout_outputs(predicted: Trajectory, truth: Trajectory | None, out: 
     }
     if truth is not None:
         metrics.update(compare(predicted, truth))
+        predicted, truth = at_common_times(predicted, truth)  # the MPM at the GNS's times
         save_error_plot(position_mse(predicted, truth), predicted.frame_dt, out / "position_mse.png")
     if animation:
         metrics["animation"] = str(save_rollout_animation(predicted, truth, out / "animation"))

@@ -1,13 +1,17 @@
-"""Training samples: windows of `history` positions and the next frame, from a split file.
+"""Training samples: windows of `history` positions and the next one, from a split file.
 
-All simulations of a split live on the training device; a batch picks windows uniformly
-over every (simulation, start frame) pair with a CPU generator (indices only) and slices
-the device tensors, so no data crosses to the device during training.
+A window at frame stride K starting at frame t holds frames t, t + K, ..., t + (history - 1) K
+and its target is frame t + history K; every start frame t that fits is a window, so every
+frame is used (K = 1: consecutive frames). All simulations of a split live on the training
+device; a batch picks windows uniformly over every (simulation, start frame) pair with a CPU
+generator (indices only) and slices the device tensors, so no data crosses to the device
+during training.
 """
 
 from __future__ import annotations
 
 import bisect
+import copy
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -28,7 +32,8 @@ class TrainingBatch:
 
 
 class Simulations:
-    """The simulations of one split file on `device`."""
+    """The simulations of one split file on `device`, sampled in windows at frame stride 1
+    (with_stride: the same data at another stride)."""
 
     def __init__(self, path: str | Path, device: torch.device, history: int = HISTORY, material_names=None):
         sims = read_simulations(path)
@@ -43,9 +48,27 @@ class Simulations:
         self.material = [
             (torch.zeros((len(t), 0)) if m is None else torch.from_numpy(m)).to(device) for _, t, m in sims
         ]
+        self._index_windows(1)
+
+    def _index_windows(self, stride: int) -> None:
+        self.stride = stride
+        span = self.history * stride  # frames from a window's first position to its target
         self._first_window = [0]
         for p in self.positions:
-            self._first_window.append(self._first_window[-1] + p.shape[0] - history)
+            self._first_window.append(self._first_window[-1] + max(p.shape[0] - span, 0))
+        if self.n_windows == 0:
+            raise InputError(
+                f"{self.path}: no simulation has more than {span} frames, which a window of {self.history} "
+                f"positions at frame stride {stride} spans; choose a smaller --frame-stride."
+            )
+
+    def with_stride(self, stride: int) -> "Simulations":
+        """The same simulations (the same device tensors), sampled at frame stride `stride`."""
+        if stride == self.stride:
+            return self
+        other = copy.copy(self)
+        other._index_windows(stride)
+        return other
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -53,6 +76,24 @@ class Simulations:
     @property
     def n_windows(self) -> int:
         return self._first_window[-1]
+
+    def moments(self) -> dict:
+        """vel_mean, vel_std, acc_mean, acc_std of the differences at this stride K,
+        v = x_{t+K} - x_t and a = v_{t+K} - v_t over every start frame t, pooled over every
+        point (m per step, m per step^2), as runout.simfiles.Moments pools the 1-frame
+        differences for metadata.json; float64 sums on the device, one host copy at the end."""
+        k = self.stride
+        sums = torch.zeros((2, 3, 2), dtype=torch.float64, device=self.positions[0].device)  # [vel/acc, n/sum/square, xy]
+        for p in self.positions:
+            v = p[k:].double() - p[:-k].double()
+            for row, d in enumerate((v, v[k:] - v[:-k])):
+                sums[row, 0] += d.shape[0] * d.shape[1]
+                sums[row, 1] += d.sum((0, 1))
+                sums[row, 2] += d.square().sum((0, 1))
+        n, total, squares = sums.cpu().unbind(1)
+        mean = total / n.clamp(min=1)
+        std = (squares / n.clamp(min=1) - mean.square()).clamp(min=0).sqrt()
+        return {"vel_mean": mean[0].tolist(), "vel_std": std[0].tolist(), "acc_mean": mean[1].tolist(), "acc_std": std[1].tolist()}
 
     def schema(self, base: FeatureSchema = FeatureSchema()) -> FeatureSchema:
         """The node-feature schema these data call for (base's other fields)."""
@@ -68,5 +109,6 @@ class Simulations:
     def _window(self, k: int):
         sim = bisect.bisect_right(self._first_window, k) - 1
         t = k - self._first_window[sim]
-        frames = self.positions[sim][t : t + self.history + 1].transpose(0, 1)  # [N, history + 1, 2]
+        span = self.history * self.stride
+        frames = self.positions[sim][t : t + span + 1 : self.stride].transpose(0, 1)  # [N, history + 1, 2]
         return frames[:, :-1], frames[:, -1], self.particle_type[sim], self.material[sim]

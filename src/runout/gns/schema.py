@@ -3,10 +3,14 @@
 Node features, in this column order (material features last, so a model can be widened
 with one more material input by appending zero columns to the encoder's first layer):
 
-    velocities   (history - 1) x dim   normalised per-frame velocities, oldest first
+    velocities   (history - 1) x dim   normalised per-step velocities, oldest first
     walls        2 x dim               clip((x - lo) / R), clip((hi - x) / R) per dimension
     type         type_embedding        learned embedding of the particle type
     material     len(material_features) e.g. [tan phi, c / 100 kPa]
+
+A step spans `frame_stride` dataset frames: the window holds the positions at frames t,
+t + K, ..., t + (history - 1) K, the velocities are differences over K frames and the model
+predicts frame t + history K (K = 1: every frame, the paper's GNS).
 """
 
 from __future__ import annotations
@@ -24,7 +28,10 @@ HISTORY = 6  # positions per input window -> 5 velocities
 # ~16 neighbours per point at 4 points per 4 m cell.
 RADIUS_PER_SPACING = 2.3
 # Allowed [lowest, highest] of the numeric fields a checkpoint stores.
-SCHEMA_LIMITS = {"history": (2, 20), "dim": (2, 2), "wall_clip": (0.0, 100.0), "particle_types": (1, 64), "type_embedding": (1, 256)}
+SCHEMA_LIMITS = {
+    "history": (2, 20), "dim": (2, 2), "wall_clip": (0.0, 100.0), "particle_types": (1, 64), "type_embedding": (1, 256),
+    "frame_stride": (1, 16),
+}
 
 
 @dataclass(frozen=True)
@@ -35,6 +42,12 @@ class FeatureSchema:
     particle_types: int = 9
     type_embedding: int = 16
     material_features: tuple[str, ...] = MATERIAL_FEATURE_NAMES
+    frame_stride: int = 1  # dataset frames per step (checkpoints without it: 1)
+
+    @property
+    def window_frames(self) -> int:
+        """Dataset frames one input window spans: (history - 1) x frame_stride + 1."""
+        return (self.history - 1) * self.frame_stride + 1
 
     @property
     def material_width(self) -> int:
@@ -74,7 +87,7 @@ class FeatureSchema:
             v = d.get(key, getattr(FeatureSchema, key))
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
                 return f"{key} = {v!r} is outside the allowed range [{lo:g}, {hi:g}]"
-        for key in ("history", "dim", "particle_types", "type_embedding"):
+        for key in ("history", "dim", "particle_types", "type_embedding", "frame_stride"):
             if not isinstance(d.get(key, 0), int):
                 return f"{key} = {d[key]!r} must be a whole number"
         names = d.get("material_features", MATERIAL_FEATURE_NAMES)

@@ -1,8 +1,9 @@
 """The learned simulator: features, normalisation, noise, the noise-corrected target, the
 loss mask and the position update, as in DeepMind's learned_simulator.
 
-Frame units throughout: positions in m, velocities v = x_t - x_{t-1} in m per frame,
-accelerations a = v_t - v_{t-1} in m per frame^2 (dt = 1 frame). The network
+Step units throughout: positions in m, velocities v = x_t - x_{t-1} in m per step,
+accelerations a = v_t - v_{t-1} in m per step^2, where a step spans schema.frame_stride
+dataset frames (1 frame, 0.0375 s, unless trained with --frame-stride). The network
 (runout.gns.network) sees only normalised, dimensionless features.
 
 Training, rollout and the inverse tell one story with one Case (the domain bounds, which
@@ -30,13 +31,14 @@ from runout.gns.schema import RADIUS_PER_SPACING, FeatureSchema
 
 @dataclass(frozen=True)
 class Normalisation:
-    """Dataset statistics in frame units, and the training noise they are widened by."""
+    """Dataset statistics in step units (stride-K differences for a model of frame stride
+    K), and the training noise they are widened by."""
 
-    vel_mean: tuple[float, float]  # m / frame
+    vel_mean: tuple[float, float]  # m / step
     vel_std: tuple[float, float]
-    acc_mean: tuple[float, float]  # m / frame^2
+    acc_mean: tuple[float, float]  # m / step^2
     acc_std: tuple[float, float]
-    noise_std: float  # m / frame: velocity noise (paper 0.067 m/s x 0.0375 s = 2.5e-3 m/frame)
+    noise_std: float  # m / step: velocity noise (paper 0.067 m/s x 0.0375 s = 2.5e-3 m per 1-frame step)
 
     @classmethod
     def from_metadata(cls, meta: dict, noise_std: float) -> "Normalisation":
@@ -56,15 +58,17 @@ class Normalisation:
         for key in ("vel_mean", "vel_std", "acc_mean", "acc_std"):
             v = d[key]
             if not isinstance(v, (list, tuple)) or len(v) != 2 or not all(_finite(x) for x in v):
-                return f"{key} = {v!r} must be a pair of finite numbers (m per frame)"
+                return f"{key} = {v!r} must be a pair of finite numbers (m per step)"
             if key.endswith("std") and min(v) < 0:
                 return f"{key} = {list(v)} must not be negative"
-        if not _finite(d["noise_std"]) or not 0 <= d["noise_std"] <= MAX_NOISE_PER_FRAME:
-            return f"noise_std = {d['noise_std']!r} is outside the allowed range [0, {MAX_NOISE_PER_FRAME:g}] m per frame"
+        if not _finite(d["noise_std"]) or not 0 <= d["noise_std"] <= MAX_NOISE_PER_STEP:
+            return f"noise_std = {d['noise_std']!r} is outside the allowed range [0, {MAX_NOISE_PER_STEP:g}] m per step"
         return None
 
 
-MAX_NOISE_PER_FRAME = 1.0  # m / frame: noise far beyond any per-frame displacement of soil
+# m / step: noise far beyond any per-step displacement of soil, yet above the largest noise
+# `runout train` allows (10 m/s x 0.0375 s x 16 frames = 6 m)
+MAX_NOISE_PER_STEP = 10.0
 # Allowed layer sizes: [lowest, highest] of each NetworkConfig field.
 NETWORK_LIMITS = {"latent": (1, 1024), "hidden": (1, 1024), "hidden_layers": (1, 8), "message_passing_steps": (1, 50)}
 
@@ -134,6 +138,16 @@ class Simulator(nn.Module):
         self.register_buffer("acc_scale", torch.tensor(stats.acc_std).square().add(noise2).sqrt())
 
     @property
+    def frame_stride(self) -> int:
+        """Dataset frames per step (schema.frame_stride; 1 for checkpoints that record none)."""
+        return self.schema.frame_stride
+
+    @property
+    def window_frames(self) -> int:
+        """Dataset frames one input window spans: (history - 1) x frame_stride + 1."""
+        return self.schema.window_frames
+
+    @property
     def point_spacing(self) -> float:
         """The lattice spacing (m) of the points the model was trained on: its data_ranges'
         point_spacing_m, or radius / RADIUS_PER_SPACING for a checkpoint that records none.
@@ -168,7 +182,7 @@ class Simulator(nn.Module):
         return (acceleration - self.acc_mean) / self.acc_scale
 
     def next_positions(self, window, particle_type, material, bounds, graph=None) -> torch.Tensor:
-        """Semi-implicit Euler in frame units: v' = (x_t - x_{t-1}) + a, x' = x_t + v'."""
+        """Semi-implicit Euler in step units: v' = (x_t - x_{t-1}) + a, x' = x_t + v'."""
         acceleration = self(window, particle_type, material, bounds, graph).float() * self.acc_scale + self.acc_mean
         velocity = window[:, -1] - window[:, -2] + acceleration
         return window[:, -1] + velocity
@@ -204,7 +218,7 @@ def random_walk_noise(window: torch.Tensor, noise_std: float, movable: torch.Ten
 
 
 def corrected_target(noisy_window: torch.Tensor, next_position: torch.Tensor, noise: torch.Tensor) -> torch.Tensor:
-    """Target acceleration (m / frame^2) for noisy inputs. The next position is moved by the
+    """Target acceleration (m / step^2) for noisy inputs. The next position is moved by the
     same noise as the current one (public recipe), so the update with this acceleration
     gives x_t + noise_t + (x_{t+1} - x_t): the true next velocity from the noisy position."""
     target = next_position + noise[:, -1]

@@ -19,18 +19,19 @@ from runout.inverse.spec import INPUT_FRAMES, InverseSpec
 def gns_forward(
     simulator: Simulator, observation: Observation, bounds: np.ndarray, checkpoint: bool = True, progress: bool = False
 ) -> ForwardModel:
-    """A rollout from the scene at rest (INPUT_FRAMES identical frames) for observation.steps
+    """A rollout from the scene at rest (INPUT_FRAMES identical frames) for observation.model_steps
     steps, each step recomputed in the backward pass when `checkpoint`; returns the frames
-    observed, [F, N, 2] (m). `progress` shows a bar over the forward steps."""
+    observed, [F, N, 2] (m), frame f being rollout frame f / frame stride. `progress` shows a
+    bar over the forward steps."""
     device = simulator.vel_mean.device
     initial = torch.tensor(observation.initial, dtype=torch.float32, device=device)
     window = initial[None].expand(INPUT_FRAMES, -1, -1)
     particle_type = torch.as_tensor(observation.particle_type, device=device)
-    frames = torch.tensor(observation.frames, device=device)
+    frames = torch.tensor(observation.model_frames, device=device)
 
     def forward(features: torch.Tensor) -> torch.Tensor:
         positions = rollout(
-            simulator, window, particle_type, features, observation.steps, bounds,
+            simulator, window, particle_type, features, observation.model_steps, bounds,
             checkpoint=checkpoint, progress=progress,
         )
         return positions[frames]
@@ -51,6 +52,9 @@ def inverse_problem(
         raise InputError(
             f"the model reads {simulator.schema.history} positions per step; the inverse seeds rollouts with {INPUT_FRAMES}."
         )
+    if observation.stride != simulator.frame_stride:
+        raise InputError(f"the observation was read for frame stride {observation.stride} but the model steps "
+                         f"{simulator.frame_stride} frames at a time; load it with stride={simulator.frame_stride}.")
     simulator.requires_grad_(False)
     return InverseProblem(
         free=spec.free,

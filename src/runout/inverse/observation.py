@@ -1,7 +1,10 @@
 """The observation an inverse analysis fits: target positions at chosen frames, point by point.
 
 The target's points must be the scene's points in the order `fill_points` seeds them (as a
-trajectory from `runout mpm` of the same scene has them).
+trajectory from `runout mpm` of the same scene has them). Frames are the target's (dataset)
+frames; a GNS of frame stride K predicts only frames 6K, 7K, ... (its rollout frame j is
+frame jK), so with it every observed frame must be one of those and "final" means the last
+of those the target has.
 """
 
 from __future__ import annotations
@@ -20,13 +23,25 @@ from runout.trajectory import Trajectory, load_trajectory
 
 @dataclass
 class Observation:
-    frames: tuple[int, ...]  # observed frame numbers (0-based, >= 6)
+    frames: tuple[int, ...]  # observed frame numbers (0-based; multiples of stride from 6 x stride)
     positions: np.ndarray  # [F, N, 2] m, target positions at those frames
-    steps: int  # rollout steps; the rollout's last frame is INPUT_FRAMES - 1 + steps
+    steps: int  # the rollout reaches frame INPUT_FRAMES - 1 + steps (at stride 1: its steps)
     initial: np.ndarray  # [N, 2] m, the scene at rest
     particle_type: np.ndarray  # [N]
     material_id: np.ndarray  # [N] index into spec.scene.material_names
     true_values: list[float] | None  # free parameters that made the target, when known
+    stride: int = 1  # dataset frames per step of the model rolled out (a GNS's frame stride)
+
+    @property
+    def model_steps(self) -> int:
+        """Steps of that model from INPUT_FRAMES frames at rest to (at least) the last frame
+        INPUT_FRAMES - 1 + steps; `steps` itself at stride 1."""
+        return -(-(INPUT_FRAMES - 1 + self.steps) // self.stride) - (INPUT_FRAMES - 1)
+
+    @property
+    def model_frames(self) -> tuple[int, ...]:
+        """The observed frames as indices of that model's rollout (frame / stride)."""
+        return tuple(f // self.stride for f in self.frames)
 
     @property
     def moving(self) -> np.ndarray:
@@ -43,19 +58,21 @@ class Observation:
         return moving * (1.0 + loss.front_weight * moved / max(float(moved.max()), 1e-12))
 
 
-def load_observation(spec: InverseSpec, scene_name: str = "the scene") -> Observation:
+def load_observation(spec: InverseSpec, scene_name: str = "the scene", stride: int = 1) -> Observation:
     """The target at its observed frames, checked against the points of spec.scene (called
-    `scene_name` in errors, e.g. "the scene at the model's 5 m point spacing (10 m cells)")."""
+    `scene_name` in errors, e.g. "the scene at the model's 5 m point spacing (10 m cells)")
+    and against the frames a model of frame stride `stride` predicts."""
     points = fill_points(spec.scene)
     if spec.target.trajectory is not None:
         traj = load_trajectory(spec.target.trajectory)
         _check_same_points(traj, points.position, spec.target.trajectory, scene_name)
-        frames, steps = _frames_in_trajectory(spec, traj.n_frames)
+        frames, steps = _frames_in_trajectory(spec, traj.n_frames, stride)
         positions = traj.positions[list(frames)]
         true_values = _true_values(spec, traj)
     else:
         positions, frames, steps = _observed_positions(spec, len(points), scene_name)
         true_values = None
+    _check_stride(spec, frames, stride)
     return Observation(
         frames=frames,
         positions=np.asarray(positions, dtype=np.float64),
@@ -64,6 +81,7 @@ def load_observation(spec: InverseSpec, scene_name: str = "the scene") -> Observ
         particle_type=points.particle_type,
         material_id=points.material_id,
         true_values=true_values,
+        stride=stride,
     )
 
 
@@ -81,19 +99,28 @@ def _check_same_points(traj: Trajectory, initial: np.ndarray, path: Path, scene_
         )
 
 
-def _frames_in_trajectory(spec: InverseSpec, n_frames: int) -> tuple[tuple[int, ...], int]:
+def _frames_in_trajectory(spec: InverseSpec, n_frames: int, stride: int) -> tuple[tuple[int, ...], int]:
     last_target = n_frames - 1
-    if last_target < INPUT_FRAMES:
-        raise InputError(f"{spec.target.trajectory}: the target has only {n_frames} frames; it needs more than {INPUT_FRAMES}.")
+    if last_target < INPUT_FRAMES * stride:
+        raise InputError(f"{spec.target.trajectory}: the target has only {n_frames} frames; "
+                         f"it needs more than {INPUT_FRAMES * stride}.")
     frames = spec.target.frames
     if frames is None:
         last = last_target if spec.steps is None else INPUT_FRAMES - 1 + spec.steps
-        frames = (last,)
+        frames = (last // stride * stride,)  # the last frame the model predicts
     if frames[-1] > last_target:
         raise InputError(
             f"{spec.source}: observed frame {frames[-1]} is beyond the target trajectory's last frame {last_target}."
         )
     return frames, _steps(spec, frames)
+
+
+def _check_stride(spec: InverseSpec, frames: tuple[int, ...], stride: int) -> None:
+    """Each observed frame must be one that a model of frame stride `stride` predicts."""
+    for f in frames:
+        if f % stride or f < INPUT_FRAMES * stride:
+            raise InputError(f"{spec.source}: observed frame {f} is not one the model predicts (at frame stride "
+                             f"{stride}: the multiples of {stride} from frame {INPUT_FRAMES * stride}).")
 
 
 def _steps(spec: InverseSpec, frames: tuple[int, ...]) -> int:

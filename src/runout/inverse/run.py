@@ -67,7 +67,7 @@ def invert(
     if engine == "gns":
         simulator = _gns_model(model, device)
         spec, filled = _at_model_spacing(spec, simulator, log)
-    observation = load_observation(spec, filled)
+    observation = load_observation(spec, filled, 1 if simulator is None else simulator.frame_stride)
     evaluate, model_name = _evaluator(spec, observation, engine, simulator, model, device, fd_step, checkpoint, progress, warn)
     claim(folder)
     info = RunInfo(digest=spec.digest, engine=engine, model=model_name, start=[])
