@@ -8,7 +8,8 @@
 2. A column collapse (examples/column_a1.toml: 150 x 150 m, phi 22.5 deg, c 25 kPa) filled
    at the model's point spacing, run by the MPM and by the GNS from rest for --frames
    frames: normalised runout of each and their difference; column.png shows both.
-Writes OUT/metrics.json and OUT/column.png and prints the metrics.
+3. With --log, the training and validation curves of the run (OUT/curves.png).
+Writes OUT/metrics.json (and the pictures) and prints the metrics.
 """
 
 from __future__ import annotations
@@ -25,20 +26,60 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 
 
-def test_split(simulator, data: Path) -> dict:
+def test_split(simulator, data: Path, limit: int | None = None) -> dict:
+    """Rollouts of the first `limit` test trajectories, beside a prediction in which nothing
+    moves (the floor any useful model must beat)."""
     from runout.dataset import split_trajectories
     from runout.gns.rollout import rollout_trajectory
     from runout.metrics import compare
 
     rows = []
-    for k, truth in enumerate(split_trajectories(data, "test")):
+    for k, truth in enumerate(split_trajectories(data, "test", limit)):
         predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None)
         result = compare(predicted, truth)
+        still = compare(replace(truth, positions=np.repeat(truth.positions[:1], truth.n_frames, axis=0)), truth)
         rows.append({"trajectory": k, "points": truth.n_points, "frames": truth.n_frames,
-                     "position_mse_mean_m2": result["position_mse_mean_m2"], "runout_error": result["runout_error"]})
+                     "position_mse_mean_m2": result["position_mse_mean_m2"], "runout_error": result["runout_error"],
+                     "still_position_mse_mean_m2": still["position_mse_mean_m2"], "still_runout_error": still["runout_error"]})
     return {"trajectories": rows,
             "mean_position_mse_m2": float(np.mean([r["position_mse_mean_m2"] for r in rows])),
-            "mean_abs_runout_error": float(np.mean([abs(r["runout_error"]) for r in rows]))}
+            "mean_abs_runout_error": float(np.mean([abs(r["runout_error"]) for r in rows])),
+            "still_mean_position_mse_m2": float(np.mean([r["still_position_mse_mean_m2"] for r in rows])),
+            "still_mean_abs_runout_error": float(np.mean([abs(r["still_runout_error"]) for r in rows]))}
+
+
+def curves(log: Path, path: Path) -> dict:
+    """Training loss (mean of each logged group of steps) and validation rollout figures
+    against the step, from a run's log.jsonl."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    rows = [json.loads(line) for line in log.read_text().splitlines() if line]
+    loss = [(r["step"], r["loss"]) for r in rows if "loss" in r]
+    valid = [(r["step"], r["valid_runout_error"], r["valid_position_mse_m2"]) for r in rows if "valid_runout_error" in r]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
+    steps, values = zip(*loss)
+    axes[0].semilogy(steps, values, lw=0.5, color="0.6", label="mean of each logged group")
+    width = max(1, len(values) // 50)
+    smooth = np.convolve(values, np.ones(width) / width, mode="valid")
+    axes[0].semilogy(steps[width - 1:], smooth, color="C0", label=f"running mean of {width}")
+    axes[0].set(xlabel="step", ylabel="training loss (normalised acceleration MSE)", title="training")
+    axes[0].legend(fontsize=8)
+    if valid:
+        vs, ve, vm = zip(*valid)
+        axes[1].plot(vs, 100 * np.abs(ve), "o-", color="C1", label="|runout error| (%)")
+        twin = axes[1].twinx()
+        twin.semilogy(vs, vm, "s--", color="C2", label="position MSE (m²)")
+        twin.set_ylabel("position MSE over the rollout (m²)")
+        axes[1].legend(loc="upper left", fontsize=8)
+        twin.legend(loc="upper right", fontsize=8)
+    axes[1].set(xlabel="step", ylabel="|runout error| (%)", title="validation rollouts")
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return {"last_step": steps[-1], "loss_last_1000_steps": float(np.mean([v for s, v in loss if s > steps[-1] - 1000])),
+            "validation": [{"step": s, "runout_error": e, "position_mse_m2": m} for s, e, m in valid]}
 
 
 def column(simulator, scene_path: Path, frames: int, out: Path) -> dict:
@@ -52,7 +93,7 @@ def column(simulator, scene_path: Path, frames: int, out: Path) -> dict:
     t0 = time.perf_counter()
     truth = simulate([scene], device="cpu", progress=False)[0]
     mpm_s = time.perf_counter() - t0
-    predicted = rollout_trajectory(simulator, scene_at_rest(scene, simulator.schema.history), frames, stop_speed=None)
+    predicted = rollout_trajectory(simulator, scene_at_rest(scene, simulator.window_frames), frames, stop_speed=None)
     mpm_ln, gns_ln = normalised_extent(truth), normalised_extent(predicted)
     _draw(truth, predicted, out / "column.png")
     return {"scene": scene_path.name, "cell_size_m": scene.domain.cell_size, "points": truth.n_points, "frames": frames,
@@ -73,14 +114,23 @@ def main() -> None:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--column", type=Path, default=REPO / "examples" / "column_a1.toml")
     p.add_argument("--frames", type=int, default=240, help="Frames of the column runs.")
+    p.add_argument("--no-column", action="store_true", help="Skip the column (e.g. for a friction-only base model).")
+    p.add_argument("--limit", type=int, default=None, help="Roll out only the first LIMIT test trajectories.")
+    p.add_argument("--log", type=Path, default=None, help="The run's log.jsonl: draw OUT/curves.png from it.")
+    p.add_argument("--threads", type=int, default=1)
     args = p.parse_args()
     from runout.gns.checkpoint import load_simulator
 
-    torch.set_num_threads(1)
+    torch.set_num_threads(args.threads)
     args.out.mkdir(parents=True, exist_ok=True)
     simulator = load_simulator(args.model)
-    metrics = {"model": str(args.model), "test_split": test_split(simulator, args.data),
-               "column": column(simulator, args.column, args.frames, args.out)}
+    t0 = time.perf_counter()
+    metrics = {"model": str(args.model), "test_split": test_split(simulator, args.data, args.limit)}
+    metrics["test_split"]["rollout_wall_s"] = round(time.perf_counter() - t0, 1)
+    if not args.no_column:
+        metrics["column"] = column(simulator, args.column, args.frames, args.out)
+    if args.log is not None:
+        metrics["curves"] = curves(args.log, args.out / "curves.png")
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=1))
     print(json.dumps(metrics, indent=1))
 
