@@ -30,30 +30,30 @@ BOUNDS = [[0.0, 300.0], [0.0, 152.0]]  # m
 STATS = Normalisation((0.0, -0.01), (0.05, 0.05), (0.0, -1e-3), (5e-3, 5e-3), 0.067 * 0.0375)
 
 
-def lattice_window(seed: int, device) -> torch.Tensor:
-    """[6000, 6, 2] positions (m): a jittered 2 m lattice moving slowly downhill."""
+def lattice_window(seed: int, device, frames: int = 7) -> torch.Tensor:
+    """[6000, frames, 2] positions (m): a jittered 2 m lattice moving slowly downhill."""
     gen = torch.Generator().manual_seed(seed)
     ij = torch.stack(torch.meshgrid(torch.arange(150.0), torch.arange(40.0), indexing="ij"), -1).reshape(-1, 2)
     x = ij * 2.0 + 1.0 + (torch.rand(ij.shape, generator=gen) - 0.5) * 0.4
-    frames = torch.stack([x + torch.tensor([0.02, -0.01]) * t for t in range(7)], dim=1)
-    return frames.to(device)
+    return torch.stack([x + torch.tensor([0.02, -0.01]) * t for t in range(frames)], dim=1).to(device)
 
 
 @dataclass
 class LatticeData:
-    """Stands in for runout.gns.samples.Simulations: always the same two lattice graphs."""
+    """Stands in for runout.gns.samples.Simulations: always the same two lattice graphs
+    (of at least 7 + unroll frames)."""
 
     frames: list[torch.Tensor]
 
-    def sample(self, batch_size: int, generator) -> TrainingBatch:
+    def sample(self, batch_size: int, generator, unroll: int = 0) -> TrainingBatch:
         n = self.frames[0].shape[0]
         device = self.frames[0].device
         window = torch.cat([f[:, :6] for f in self.frames[:batch_size]])
-        nxt = torch.cat([f[:, 6] for f in self.frames[:batch_size]])
+        future = torch.cat([f[:, 6 : 7 + unroll] for f in self.frames[:batch_size]])
         ptype = torch.full((n * batch_size,), 6, device=device)
         material = torch.full((n * batch_size, 1), 0.5, device=device)
         graph = torch.arange(batch_size, device=device).repeat_interleave(n)
-        return TrainingBatch(window, nxt, ptype, material, graph)
+        return TrainingBatch(window, future, ptype, material, graph)
 
 
 def timed(fn, repeats: int, device) -> float:

@@ -46,9 +46,9 @@ def test_windows_at_stride_two_start_at_every_frame(tmp_path):
     sims = Simulations(data / "train.npz", torch.device("cpu")).with_stride(2)
     assert sims.n_windows == 2 * (20 - 6 * 2)  # starts 0..7 of each simulation
     positions = torch.from_numpy(read_simulations(data / "train.npz")[1][0])
-    window, target, _, _ = sims._window(8 + 3)  # the second simulation, start frame 3
+    window, future, _, _ = sims._window(8 + 3)  # the second simulation, start frame 3
     torch.testing.assert_close(window, positions[3:14:2].transpose(0, 1))  # frames 3, 5, ..., 13
-    torch.testing.assert_close(target, positions[15])
+    torch.testing.assert_close(future[:, -1], positions[15])
 
 
 def test_stride_two_statistics_are_those_of_two_frame_differences(tmp_path):

@@ -2,13 +2,16 @@
 
 Each step draws `batch_size` windows per process (at the frame stride: positions K frames
 apart), perturbs their input positions with random-walk noise (velocity std 0.067 m/s =
-0.067 x 0.0375 x K = 2.5e-3 K m per step),
-corrects the target acceleration, and minimises the squared error of the normalised
-acceleration over the non-kinematic points with Adam and the paper's learning rate
-lr(i) = (1e-4 - 1e-6) 0.1^(i / 5e6) + 1e-6. The random numbers of a step come from
-generators seeded by (seed, step, rank), so a run resumed from any checkpoint repeats
-exactly what an unbroken run would have done (bitwise on CPU). Under torchrun, the
-forward goes through the DDP wrapper, which averages gradients across processes.
+0.067 x 0.0375 x K = 2.5e-3 K m per step), corrects the target acceleration, and minimises
+the squared error of the normalised acceleration over the non-kinematic points with Adam and
+the paper's learning rate lr(i) = (1e-4 - 1e-6) 0.1^(i / 5e6) + 1e-6. With pushforward N,
+each step first draws n uniformly from 0..N, rolls the model out n steps from the true
+windows without gradient, and trains on the window so produced (noise on top) against the
+true frame n steps further on. The random numbers of a step come from generators seeded by
+(seed, step, rank), and n from one seeded by (seed, step) alone, so every process unrolls as
+many steps, and a run resumed from any checkpoint repeats exactly what an unbroken run would
+have done (bitwise on CPU). Under torchrun, the forward goes through the DDP wrapper, which
+averages gradients across processes.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from runout.simfiles import read_metadata
 CHECKPOINT = "checkpoint.pt"
 BEST = "best.pt"
 LOG = "log.jsonl"
+PUSHFORWARD_LIMITS = (0, 10)  # allowed --pushforward: the most rollout steps before a training step
 
 
 @dataclass
@@ -72,6 +76,7 @@ class TrainConfig:
     max_hours: float = 0.0  # wall-clock limit of this run (one chunk of a campaign); 0: none
     radius: float | None = None  # connectivity radius in m (None: the dataset's default)
     frame_stride: int | None = None  # dataset frames per GNS step (None: 1, or the checkpoint's on --resume / --init)
+    pushforward: int = 0  # each step first unrolls n ~ U{0..pushforward} steps without gradient (0: one-step)
 
 
 def learning_rate(step: int, cfg: TrainConfig) -> float:
@@ -123,6 +128,7 @@ def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
     data = Simulations(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"))
     simulator, state, cfg = _build(cfg, meta, data)
     data = data.with_stride(simulator.frame_stride)
+    data.check_windows(cfg.pushforward)
     if state is None or simulator.data_ranges is None:  # new data: record what the model learns from
         simulator.data_ranges = measure_ranges(
             [m.cpu().numpy() for m in data.material], [t.cpu().numpy() for t in data.particle_type],
@@ -211,10 +217,14 @@ class StopRequest:
 
 def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> torch.Tensor:
     sampler, noise_gen = _generators(cfg.seed, step, ctx)
-    batch = data.sample(cfg.batch_size, sampler)
+    batch = data.sample(cfg.batch_size, sampler, unrolled_steps(cfg.seed, step, cfg.pushforward))
     case = Case.of(batch.particle_type, bounds)
-    noisy, target = simulator.training_inputs(batch.window, batch.next_position, case, noise_gen)
     autocast = torch.autocast(ctx.device.type, dtype=torch.bfloat16) if cfg.bf16 else nullcontext()
+    with autocast:  # the model's own rollout from the true window, without gradient (none when batch.unroll is 0)
+        window = simulator.pushforward(
+            batch.window, batch.unroll, batch.particle_type, batch.material, case, batch.graph
+        )
+    noisy, target = simulator.training_inputs(window, batch.future[:, -1], case, noise_gen)
     with autocast:  # through `model`, the DDP wrapper under torchrun, so gradients synchronise
         predicted = model(noisy, batch.particle_type, batch.material, case.bounds, batch.graph, cfg.checkpoint_layers)
     loss = simulator.loss(predicted, target, case)
@@ -222,6 +232,15 @@ def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> to
     loss.backward()
     optimizer.step()
     return loss
+
+
+def unrolled_steps(seed: int, step: int, pushforward: int) -> int:
+    """Pushforward steps of training step `step`: uniform in 0..pushforward, from a generator
+    seeded by (seed, step) only, so every process of a torchrun draws the same number."""
+    if pushforward == 0:
+        return 0
+    key = hash((seed, step)) & 0x7FFF_FFFF_FFFF_FFFF
+    return int(torch.randint(pushforward + 1, (1,), generator=torch.Generator().manual_seed(key)))
 
 
 def _generators(seed: int, step: int, ctx: Context) -> tuple[torch.Generator, torch.Generator]:
@@ -235,7 +254,8 @@ def _generators(seed: int, step: int, ctx: Context) -> tuple[torch.Generator, to
 def _build(cfg: TrainConfig, meta: dict, data: Simulations):
     """The simulator to train, the resumed training state (or None) and the settings."""
     out = Path(cfg.out)
-    _check_stride(cfg.frame_stride)
+    _check_whole("--frame-stride", cfg.frame_stride, *SCHEMA_LIMITS["frame_stride"])
+    _check_whole("--pushforward", cfg.pushforward, *PUSHFORWARD_LIMITS)
     if cfg.resume:
         path = out / CHECKPOINT
         ckpt = read_checkpoint(path)
@@ -273,10 +293,10 @@ def _build(cfg: TrainConfig, meta: dict, data: Simulations):
     return Simulator(schema, stats, radius, cfg.network), None, replace(cfg, frame_stride=stride)
 
 
-def _check_stride(stride: int | None) -> None:
-    lo, hi = SCHEMA_LIMITS["frame_stride"]
-    if stride is not None and (isinstance(stride, bool) or not isinstance(stride, int) or not lo <= stride <= hi):
-        raise InputError(f"--frame-stride = {stride!r} is outside the allowed range [{lo}, {hi}] (a whole number).")
+def _check_whole(option: str, value: int | None, lo: int, hi: int) -> None:
+    """InputError unless value is a whole number in [lo, hi] (None passes: not given)."""
+    if value is not None and (isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi):
+        raise InputError(f"{option} = {value!r} is outside the allowed range [{lo}, {hi}] (a whole number).")
 
 
 def _statistics(meta: dict, data: Simulations, stride: int) -> dict:

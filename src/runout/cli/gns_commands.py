@@ -31,6 +31,7 @@ def train(
     max_hours: float = typer.Option(0.0, "--max-hours", help="Wall-clock hours for this run (one chunk); then save and stop, exit 0 (0: no limit)."),
     radius: float = typer.Option(None, "--radius", help="Connectivity radius in m (default: the dataset's, 2.3 point spacings); new runs only."),
     frame_stride: int = typer.Option(None, "--frame-stride", help="Dataset frames per GNS step, 1-16 (default 1; --resume and --init keep the checkpoint's)."),
+    pushforward: int = typer.Option(0, "--pushforward", help="Pushforward training, N = 0-10: each step rolls the model out n steps without gradient, n uniform in 0..N per step, and trains on the window it made (0: one-step training)."),
     noise_std: float = typer.Option(0.067, "--noise-std", help="Velocity noise std in m/s (converted to m per frame with the dataset's dt)."),
     latent: int = typer.Option(128, "--latent", help="Latent size of nodes and edges."),
     hidden: int = typer.Option(128, "--hidden", help="Units of each hidden MLP layer."),
@@ -50,7 +51,7 @@ def train(
     from runout.gns.schema import SCHEMA_LIMITS
     from runout.gns.simulator import NETWORK_LIMITS, NetworkConfig
     from runout.outputs import check_folder, claim
-    from runout.train import BEST, CHECKPOINT, LOG, TrainConfig, train as run_training
+    from runout.train import BEST, CHECKPOINT, LOG, PUSHFORWARD_LIMITS, TrainConfig, train as run_training
 
     for name, value, lo, hi in (
         ("--steps", steps, 1, 1_000_000_000), ("--batch-size", batch_size, 1, 64),
@@ -66,6 +67,7 @@ def train(
     check_range("--max-hours", max_hours, 0.0, 1000.0, " h")
     check_range("--radius", radius, 0.1, 1000.0, " m")
     check_range("--frame-stride", frame_stride, *SCHEMA_LIMITS["frame_stride"])
+    check_range("--pushforward", pushforward, *PUSHFORWARD_LIMITS)
     if not 0 < lr <= 1:
         raise InputError(f"--lr = {lr:g} is outside the allowed range (0, 1].")
     folder = check_folder(out, "train", (CHECKPOINT, BEST, LOG, "tensorboard"), mode="resume", force=force)
@@ -78,7 +80,7 @@ def train(
         save_every=save_every, log_every=log_every, valid_every=valid_every,
         valid_trajectories=valid_trajectories, valid_frames=valid_frames,
         checkpoint_layers=checkpoint_layers, bf16=bf16, lr_decay_steps=lr_decay_steps,
-        max_hours=max_hours, radius=radius, frame_stride=frame_stride,
+        max_hours=max_hours, radius=radius, frame_stride=frame_stride, pushforward=pushforward,
     )
     run_training(cfg)
 

@@ -1,11 +1,13 @@
-"""Training samples: windows of `history` positions and the next one, from a split file.
+"""Training samples: windows of `history` positions and the true positions after them, from a split file.
 
 A window at frame stride K starting at frame t holds frames t, t + K, ..., t + (history - 1) K
 and its target is frame t + history K; every start frame t that fits is a window, so every
-frame is used (K = 1: consecutive frames). All simulations of a split live on the training
-device; a batch picks windows uniformly over every (simulation, start frame) pair with a CPU
-generator (indices only) and slices the device tensors, so no data crosses to the device
-during training.
+frame is used (K = 1: consecutive frames). A sample for n pushforward steps (runout.train)
+also holds the true frames t + (history + 1) K, ..., t + (history + n) K, the last of which
+is then its target, so its start t must leave room for them. All simulations of a split live
+on the training device; a batch picks windows uniformly over every (simulation, start frame)
+pair that fits with a CPU generator (indices only) and slices the device tensors, so no data
+crosses to the device during training.
 """
 
 from __future__ import annotations
@@ -25,15 +27,20 @@ from runout.simfiles import read_simulations
 @dataclass
 class TrainingBatch:
     window: torch.Tensor  # [N, history, 2] m, graphs concatenated
-    next_position: torch.Tensor  # [N, 2] m
+    future: torch.Tensor  # [N, unroll + 1, 2] m: the true positions of the next steps; the last is the target
     particle_type: torch.Tensor  # [N]
     material: torch.Tensor  # [N, k]
     graph: torch.Tensor  # [N] graph index within the batch
 
+    @property
+    def unroll(self) -> int:
+        """Pushforward steps between the window and the target."""
+        return self.future.shape[1] - 1
+
 
 class Simulations:
     """The simulations of one split file on `device`, sampled in windows at frame stride 1
-    (with_stride: the same data at another stride)."""
+    (with_stride: the same data at another stride), with 0 or more pushforward steps."""
 
     def __init__(self, path: str | Path, device: torch.device, history: int = HISTORY, material_names=None):
         sims = read_simulations(path)
@@ -52,22 +59,35 @@ class Simulations:
 
     def _index_windows(self, stride: int) -> None:
         self.stride = stride
-        span = self.history * stride  # frames from a window's first position to its target
-        self._first_window = [0]
-        for p in self.positions:
-            self._first_window.append(self._first_window[-1] + max(p.shape[0] - span, 0))
-        if self.n_windows == 0:
+        self._first_window: dict[int, list[int]] = {}  # unroll -> first window index of each simulation, then the total
+        self.check_windows(0)
+
+    def check_windows(self, unroll: int) -> None:
+        """InputError unless some simulation has a window for `unroll` pushforward steps."""
+        if self.n_windows_for(unroll) == 0:
+            span = (self.history + unroll) * self.stride
+            steps = f" and {unroll} pushforward steps" if unroll else ""
             raise InputError(
                 f"{self.path}: no simulation has more than {span} frames, which a window of {self.history} "
-                f"positions at frame stride {stride} spans; choose a smaller --frame-stride."
+                f"positions at frame stride {self.stride}{steps} spans; choose a smaller --frame-stride"
+                f"{' or --pushforward' if unroll else ''}."
             )
+
+    def _windows(self, unroll: int) -> list[int]:
+        if unroll not in self._first_window:
+            span = (self.history + unroll) * self.stride  # frames from a window's first position to its target
+            first = [0]
+            for p in self.positions:
+                first.append(first[-1] + max(p.shape[0] - span, 0))
+            self._first_window[unroll] = first
+        return self._first_window[unroll]
 
     def with_stride(self, stride: int) -> "Simulations":
         """The same simulations (the same device tensors), sampled at frame stride `stride`."""
         if stride == self.stride:
             return self
         other = copy.copy(self)
-        other._index_windows(stride)
+        other._index_windows(stride)  # a new index; the copy shares only the tensors
         return other
 
     def __len__(self) -> int:
@@ -75,7 +95,11 @@ class Simulations:
 
     @property
     def n_windows(self) -> int:
-        return self._first_window[-1]
+        return self.n_windows_for(0)
+
+    def n_windows_for(self, unroll: int) -> int:
+        """Windows with room for `unroll` pushforward steps after their target's one."""
+        return self._windows(unroll)[-1]
 
     def moments(self) -> dict:
         """vel_mean, vel_std, acc_mean, acc_std of the differences at this stride K,
@@ -99,16 +123,19 @@ class Simulations:
         """The node-feature schema these data call for (base's other fields)."""
         return base.with_material_features(self.material_names)
 
-    def sample(self, batch_size: int, generator: torch.Generator) -> TrainingBatch:
-        picks = torch.randint(self.n_windows, (batch_size,), generator=generator).tolist()
-        parts = [self._window(k) for k in picks]
-        window, nxt, ptype, material = (torch.cat(x) for x in zip(*parts))
+    def sample(self, batch_size: int, generator: torch.Generator, unroll: int = 0) -> TrainingBatch:
+        """`batch_size` windows drawn uniformly from those with room for `unroll` pushforward steps."""
+        picks = torch.randint(self.n_windows_for(unroll), (batch_size,), generator=generator).tolist()
+        parts = [self._window(k, unroll) for k in picks]
+        window, future, ptype, material = (torch.cat(x) for x in zip(*parts))
         graph = torch.cat([torch.full((len(p[0]),), g, device=window.device) for g, p in enumerate(parts)])
-        return TrainingBatch(window, nxt, ptype, material, graph)
+        return TrainingBatch(window, future, ptype, material, graph)
 
-    def _window(self, k: int):
-        sim = bisect.bisect_right(self._first_window, k) - 1
-        t = k - self._first_window[sim]
-        span = self.history * self.stride
-        frames = self.positions[sim][t : t + span + 1 : self.stride].transpose(0, 1)  # [N, history + 1, 2]
-        return frames[:, :-1], frames[:, -1], self.particle_type[sim], self.material[sim]
+    def _window(self, k: int, unroll: int = 0):
+        """(window [N, history, 2], future [N, unroll + 1, 2], particle_type, material) of window k."""
+        first = self._windows(unroll)
+        sim = bisect.bisect_right(first, k) - 1
+        t = k - first[sim]
+        span = (self.history + unroll) * self.stride
+        frames = self.positions[sim][t : t + span + 1 : self.stride].transpose(0, 1)  # [N, history + unroll + 1, 2]
+        return frames[:, : self.history], frames[:, self.history :], self.particle_type[sim], self.material[sim]

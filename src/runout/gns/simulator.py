@@ -10,6 +10,7 @@ Training, rollout and the inverse tell one story with one Case (the domain bound
 points move, the wall clamp):
 
     case = Case.of(particle_type, bounds)
+    window = simulator.pushforward(window, n, particle_type, material, case)            # train, n >= 0 steps
     noisy, target = simulator.training_inputs(window, next_position, case, generator)   # train
     loss = simulator.loss(simulator(noisy, particle_type, material, case.bounds), target, case)
     next_position = simulator.step(window, particle_type, material, case)                # rollout
@@ -190,6 +191,17 @@ class Simulator(nn.Module):
     def step(self, window, particle_type, material, case: Case, graph=None) -> torch.Tensor:
         """One rollout step: the next positions [N, 2] (m), constrained by the case."""
         return case.constrain(self.next_positions(window, particle_type, material, case.bounds, graph), window[:, -1])
+
+    @torch.no_grad()
+    def pushforward(self, window, steps: int, particle_type, material, case: Case, graph=None) -> torch.Tensor:
+        """The window [N, history, 2] (m) after `steps` rollout steps of this model from
+        `window`, without gradient: each step appends its prediction, constrained as in
+        `step`, and drops the oldest position, as runout.gns.rollout does (Brandstetter et
+        al. 2022's pushforward: training inputs that carry the model's own errors)."""
+        for _ in range(steps):
+            nxt = self.step(window, particle_type, material, case, graph)
+            window = torch.cat([window[:, 1:], nxt[:, None]], dim=1)
+        return window
 
     def training_inputs(self, window, next_position, case: Case, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
         """(noisy window [N, history, 2] m, normalised noise-corrected target acceleration
