@@ -121,22 +121,24 @@ def _only_material(data):
     return (float(material[0, 0]),)
 
 
-def _free_port() -> int:
+def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
 
 
-def _ddp_worker(rank: int, world: int, port: int, data, out, result_dir):
+def ddp_worker(rank: int, world: int, port: int, data, out, result_dir, settings=None):
+    """One of `world` gloo processes training 6 steps (extra TrainConfig `settings`); its
+    final weights go to result_dir/rank{rank}.pt. Shared with tests/test_pushforward.py."""
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), LOCAL_RANK=str(rank), WORLD_SIZE=str(world))
     torch.set_num_threads(1)
-    model = train(config(data, out, steps=6, device="cpu"))
+    model = train(config(data, out, steps=6, device="cpu", **(settings or {})))
     torch.save(model.state_dict(), result_dir / f"rank{rank}.pt")
 
 
 def test_two_gloo_processes_keep_identical_parameters(tmp_path):
     data = write_dataset(tmp_path / "data", n_train=4)
-    mp.spawn(_ddp_worker, args=(2, _free_port(), data, tmp_path / "run", tmp_path), nprocs=2, join=True)
+    mp.spawn(ddp_worker, args=(2, free_port(), data, tmp_path / "run", tmp_path), nprocs=2, join=True)
     a, b = (torch.load(tmp_path / f"rank{r}.pt") for r in (0, 1))
     assert all(torch.equal(a[k], b[k]) for k in a)
     saved = load_simulator(tmp_path / "run" / "checkpoint.pt").state_dict()

@@ -2,7 +2,6 @@
 true window without gradient and trains on the window it made against the true frame."""
 
 import json
-import os
 
 import numpy as np
 import pytest
@@ -18,7 +17,7 @@ from runout.simfiles import read_metadata, read_simulations
 from runout.train import Context, _generators, _train_step, train, unrolled_steps
 from test_cli_exits import one_sentence, run
 from test_gns_synthetic import write_dataset
-from test_gns_train import TINY, _free_port, config, losses
+from test_gns_train import TINY, config, ddp_worker, free_port, losses
 
 torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
 
@@ -140,16 +139,9 @@ def test_a_stopped_pushforward_run_resumes_exactly_as_if_never_stopped(tmp_path)
     assert read_checkpoint(tmp_path / "broken" / "checkpoint.pt")["train"]["pushforward"] == 2
 
 
-def _ddp_worker(rank: int, world: int, port: int, data, out, result_dir):
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), LOCAL_RANK=str(rank), WORLD_SIZE=str(world))
-    torch.set_num_threads(1)
-    model = train(config(data, out, steps=6, device="cpu", pushforward=2))
-    torch.save(model.state_dict(), result_dir / f"rank{rank}.pt")
-
-
 def test_two_gloo_processes_with_pushforward_keep_identical_parameters(tmp_path):
     data = write_dataset(tmp_path / "data", n_train=4)
-    mp.spawn(_ddp_worker, args=(2, _free_port(), data, tmp_path / "run", tmp_path), nprocs=2, join=True)
+    mp.spawn(ddp_worker, args=(2, free_port(), data, tmp_path / "run", tmp_path, {"pushforward": 2}), nprocs=2, join=True)
     a, b = (torch.load(tmp_path / f"rank{r}.pt") for r in (0, 1))
     assert all(torch.equal(a[k], b[k]) for k in a)
 
