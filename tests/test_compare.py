@@ -1,5 +1,6 @@
-"""`runout compare`: the MPM and the shipped smoke model on one tiny scene at the model's
-resolution (10 m cells), its metrics, pictures, and the refusal of bad input."""
+"""`runout compare`: the MPM and the shipped model on one tiny scene at the model's
+resolution (its training cells, coarser than the scene's 4 m), its metrics, pictures, and the
+refusal of bad input."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ import pytest
 import torch
 
 from runout.compare import comparison_metrics
+from runout.gns.checkpoint import load_simulator
 from runout.gns.training_range import point_spacing
 from runout.metrics import deposit_iou, occupied_cells
 from runout.scene import Material, save_scene, scene_from_dict
@@ -19,10 +21,11 @@ from runout.trajectory import Trajectory, load_trajectory
 from test_cli_exits import one_sentence, run
 
 REPO = Path(__file__).resolve().parents[1]
-MODEL = REPO / "models" / "slope.pt"  # trained at 10 m cells: 5 m point spacing
+MODEL = REPO / "models" / "slope.pt"  # trained at 8 m cells (4 m point spacing); any coarser than 4 m cells
+SPACING = load_simulator(MODEL).point_spacing  # m, the spacing of the model's training data
 FRAMES = 12
 
-# a two-layer mound at 4 m cells in the file; compare fills it at the model's 10 m cells (48 points)
+# a two-layer mound at 4 m cells in the file; compare fills it at the model's cells
 MOUND = {
     "name": "mound",
     "domain": {"width": 120.0, "height": 60.0, "cell_size": 4.0},
@@ -80,10 +83,12 @@ def test_compare_metrics_are_present_and_finite(compared):
 def test_compare_fills_the_scene_at_the_models_spacing_for_both_engines(compared):
     folder, printed = compared
     m = json.loads((folder / "out" / "metrics.json").read_text())
-    assert m["cell_size_m"] == 10.0 and m["point_spacing_m"] == 5.0
-    assert "filling" in printed and "at the model's 5 m spacing (10 m cells) instead of the scene's 4 m cells" in printed
-    assert point_spacing(load_trajectory(folder / "out" / "gns")) == pytest.approx(5.0)
-    assert point_spacing(load_trajectory(m["mpm_trajectory"])) == pytest.approx(5.0)
+    assert SPACING > 2.0, "the test needs a model trained at cells coarser than the scene's 4 m"
+    assert m["cell_size_m"] == 2 * SPACING and m["point_spacing_m"] == SPACING
+    assert "filling" in printed and (f"at the model's {SPACING:g} m spacing ({2 * SPACING:g} m cells) instead of the "
+                                     "scene's 4 m cells") in printed
+    assert point_spacing(load_trajectory(folder / "out" / "gns")) == pytest.approx(SPACING)
+    assert point_spacing(load_trajectory(m["mpm_trajectory"])) == pytest.approx(SPACING)
 
 
 def test_a_second_compare_reads_the_mpm_from_the_cache(compared):

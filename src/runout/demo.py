@@ -5,6 +5,8 @@
 (b) The small dam (examples/small_dam.toml) collapses in the MPM (the target, cached); the
     inverse analysis back-calculates the undrained strength c of its lower downstream shell
     from the final deposit with the GNS: history.csv, loss.png, parameters.png, deposit.png.
+    The same back-calculation through the MPM itself (reverse-mode AD, --engine mpm-ad) is
+    the yardstick: the answer an exact physics gradient gives, in inverse/mpm_ad/.
 
 Scenes are filled at the model's own point spacing (Simulator.point_spacing, from its
 training data), so a model trained at coarse cells sees graphs like those it was trained on.
@@ -91,8 +93,19 @@ def _inverse(simulator, model: Path, scene_path: Path, out: Path, quick: bool, l
     log(f"inverse: {result.best.evaluations} evaluations in {time.perf_counter() - t0:.0f} s")
     for line in summary_lines(result):
         log(f"  {line}")
-    log(f"  true value: c = {scene.materials[FREE_MATERIAL].cohesion:g} kPa (the MPM target's)")
-    return tuple(result_dir / name for name in ("loss.png", "parameters.png", "deposit.png"))
+    truth = scene.materials[FREE_MATERIAL].cohesion
+    log(f"  true value: c = {truth:g} kPa (the MPM target's)")
+    yardstick_dir = out / "mpm_ad"
+    shutil.rmtree(yardstick_dir, ignore_errors=True)
+    t0 = time.perf_counter()
+    log("yardstick: the same back-calculation through the MPM itself (reverse-mode AD, --engine mpm-ad)")
+    yardstick = invert(spec, yardstick_dir, engine="mpm-ad")
+    (found,) = yardstick.best.values
+    (gns_found,) = result.best.values
+    log(f"  c = {found:.4g} kPa after {yardstick.best.evaluations} evaluations in {time.perf_counter() - t0:.0f} s "
+        f"(GNS: {gns_found:.4g} kPa, {100 * (gns_found - truth) / truth:+.0f} %; true {truth:g} kPa)")
+    names = ("loss.png", "parameters.png", "deposit.png")
+    return (*(result_dir / n for n in names), *(yardstick_dir / n for n in names))
 
 
 def _mpm_target(scene, out: Path, log: Log) -> Path:
