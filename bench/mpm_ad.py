@@ -29,7 +29,7 @@ from runout.inverse import load_inverse_spec, load_observation
 from runout.inverse.mpm_ad import MpmAutodiff
 from runout.inverse.mpm_fd import MpmFiniteDifference
 from runout.mpm import simulate
-from runout.scene import load_scene, save_scene
+from runout.scene import Scene, load_scene, save_scene
 from runout.trajectory import save_trajectory
 
 REPO = Path(__file__).resolve().parents[1]
@@ -56,6 +56,20 @@ def write_spec(folder: Path, free, last_frame: int) -> Path:
     return path
 
 
+def bench_scene(path: Path, frames: int, cell_size: float | None) -> Scene:
+    """The scene at PATH with `frames` frames, refilled at `cell_size` m cells when given."""
+    scene = load_scene(path).with_frames(frames)
+    if cell_size is not None:
+        scene = replace(scene, domain=replace(scene.domain, cell_size=cell_size))
+    return scene
+
+
+def write_target(folder: Path, scene: Scene) -> None:
+    """FOLDER/scene.toml and FOLDER/target: the MPM run of the scene at its own strengths."""
+    save_scene(scene, folder / "scene.toml")
+    save_trajectory(simulate([scene], progress=False)[0], folder / "target")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=160)
@@ -66,15 +80,12 @@ def main() -> None:
     ap.add_argument("--cell-size", type=float, default=None, help="refill the scene at this cell size (m)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    scene = load_scene(args.scene).with_frames(args.frames)
-    if args.cell_size is not None:
-        scene = replace(scene, domain=replace(scene.domain, cell_size=args.cell_size))
+    scene = bench_scene(args.scene, args.frames, args.cell_size)
     print(f"{args.scene.name} at {scene.domain.cell_size:g} m cells; load average {os.getloadavg()[0]:.2f}, "
           f"{args.threads} thread(s), {args.frames} frames, fd step {args.fd_step}")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        save_scene(scene, folder / "scene.toml")
-        save_trajectory(simulate([scene], progress=False)[0], folder / "target")
+        write_target(folder, scene)
         print("| P | engine | MPM runs | forward s | backward s | total s | held MB | gradient (per kPa or degree) |")
         print("|---|---|---|---|---|---|---|---|")
         for p in (int(s) for s in args.sizes.split(",")):

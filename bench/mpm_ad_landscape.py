@@ -20,7 +20,6 @@ import argparse
 import os
 import tempfile
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import matplotlib
@@ -34,8 +33,7 @@ from runout.inverse import load_inverse_spec, load_observation  # noqa: E402
 from runout.inverse.mpm_ad import MpmAutodiff  # noqa: E402
 from runout.inverse.mpm_fd import MpmFiniteDifference  # noqa: E402
 from runout.mpm import simulate  # noqa: E402
-from runout.scene import load_scene, save_scene  # noqa: E402
-from runout.trajectory import save_trajectory  # noqa: E402
+from mpm_ad import bench_scene, write_target  # noqa: E402  (bench/mpm_ad.py, beside this script)
 
 REPO = Path(__file__).resolve().parents[1]
 # (material, property, lower, upper, unit); the truth is the scene's value
@@ -110,14 +108,12 @@ def main() -> None:
     ap.add_argument("--figure", type=Path, default=None)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
-    scene = load_scene(REPO / "examples" / "dam.toml").with_frames(args.frames)
-    scene = replace(scene, domain=replace(scene.domain, cell_size=args.cell_size))
+    scene = bench_scene(REPO / "examples" / "dam.toml", args.frames, args.cell_size)
     print(f"dam at {args.cell_size:g} m cells, {args.frames} frames; load average {os.getloadavg()[0]:.2f}, "
           f"{args.threads} thread(s)")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
-        save_scene(scene, folder / "scene.toml")
-        save_trajectory(simulate([scene], progress=False)[0], folder / "target")
+        write_target(folder, scene)
         results = [study(folder, scene, s, args.sweep, args.points) for s in SWEEPS]
     print("| parameter | at | loss (m²) | AD gradient | swept slope (neighbours) | AD / swept | AD s |")
     print("|---|---|---|---|---|---|---|")
