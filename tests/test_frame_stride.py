@@ -132,13 +132,24 @@ def test_resuming_at_another_stride_is_refused_in_one_sentence(tmp_path):
     assert resumed.frame_stride == 2
 
 
-def test_fine_tuning_keeps_the_base_models_stride(tmp_path):
+def test_fine_tuning_keeps_the_base_models_stride_unless_another_is_asked(tmp_path):
     data = write_dataset(tmp_path / "data")
-    train(config(data, tmp_path / "base", steps=1, frame_stride=2))
+    base = train(config(data, tmp_path / "base", steps=1, frame_stride=2))
     tuned = train(config(data, tmp_path / "tuned", steps=1, init=tmp_path / "base" / "checkpoint.pt"))
     assert tuned.frame_stride == 2
-    with pytest.raises(InputError, match="fine-tuning keeps the base model's stride"):
-        train(config(data, tmp_path / "other", steps=1, init=tmp_path / "base" / "checkpoint.pt", frame_stride=3))
+    # --frame-stride 3 on --init: the weights carry over, the statistics become those of
+    # 3-frame differences (so a 3-frame step is normalised like a 1-frame one was)
+    other = train(config(data, tmp_path / "other", steps=1, lr_init=1e-12,
+                         init=tmp_path / "base" / "checkpoint.pt", frame_stride=3))
+    assert other.frame_stride == 3
+    moments = Simulations(data / "train.npz", torch.device("cpu")).with_stride(3).moments()
+    np.testing.assert_allclose(other.stats.vel_std, moments["vel_std"], rtol=1e-9)
+    np.testing.assert_allclose(other.stats.acc_std, moments["acc_std"], rtol=1e-9)
+    assert other.vel_scale[0] > 1.3 * base.vel_scale[0]  # a 3-frame step moves points about 1.5 times as far as 2 frames
+    for (name, w_base), (_, w_other) in zip(base.network.named_parameters(), other.network.named_parameters()):
+        torch.testing.assert_close(w_other, w_base, atol=1e-6, rtol=0, msg=name)
+    reloaded = load_simulator(tmp_path / "other" / "checkpoint.pt")
+    assert reloaded.frame_stride == 3 and reloaded.stats.vel_std == other.stats.vel_std
 
 
 def test_a_checkpoint_without_a_stride_loads_as_stride_one(tmp_path):

@@ -274,10 +274,7 @@ def _build(cfg: TrainConfig, meta: dict, data: Simulations):
         base = read_checkpoint(cfg.init)
         simulator = simulator_from_checkpoint(base, cfg.init)
         if cfg.frame_stride not in (None, simulator.frame_stride):
-            raise InputError(
-                f"{cfg.init} was trained at --frame-stride {simulator.frame_stride} and fine-tuning keeps the base "
-                f"model's stride; leave --frame-stride {cfg.frame_stride} out."
-            )
+            _restride(simulator, cfg.frame_stride, meta, data, cfg.noise_velocity_std)
         wanted = data.schema(simulator.schema)
         if wanted.material_features != simulator.schema.material_features:
             widen_material_features(simulator, wanted.material_features, cfg.init)
@@ -291,6 +288,23 @@ def _build(cfg: TrainConfig, meta: dict, data: Simulations):
     torch.manual_seed(cfg.seed)
     radius = cfg.radius if cfg.radius is not None else float(meta["default_connectivity_radius"])
     return Simulator(schema, stats, radius, cfg.network), None, replace(cfg, frame_stride=stride)
+
+
+def _restride(simulator: Simulator, stride: int, meta: dict, data: Simulations, noise_velocity_std: float) -> None:
+    """Start a model of another frame stride from `simulator`'s weights (--init with
+    --frame-stride K): the schema records K and the normalisation becomes that of the data's
+    K-frame differences, with the noise scaled to a K-frame step. The network sees inputs and
+    targets normalised as before (velocities and accelerations in units of their own spread),
+    so its weights are a warm start for the longer step, not a model of it."""
+    noise = noise_velocity_std * float(meta.get("dt", FRAME_DT)) * stride
+    stats = Normalisation.from_metadata(_statistics(meta, data, stride), noise)
+    simulator.schema = replace(simulator.schema, frame_stride=stride)
+    simulator.stats = stats
+    noise2 = stats.noise_std**2
+    for name, value in (("vel_mean", stats.vel_mean), ("acc_mean", stats.acc_mean),
+                        ("vel_scale", torch.tensor(stats.vel_std).square().add(noise2).sqrt()),
+                        ("acc_scale", torch.tensor(stats.acc_std).square().add(noise2).sqrt())):
+        getattr(simulator, name).copy_(torch.as_tensor(value, dtype=getattr(simulator, name).dtype))
 
 
 def _check_whole(option: str, value: int | None, lo: int, hi: int) -> None:

@@ -30,7 +30,7 @@ def train(
     lr_decay_steps: float = typer.Option(5e6, "--lr-decay-steps", help="D: steps over which the learning rate falls tenfold (paper: 5e6; fit it to the budget)."),
     max_hours: float = typer.Option(0.0, "--max-hours", help="Wall-clock hours for this run (one chunk); then save and stop, exit 0 (0: no limit)."),
     radius: float = typer.Option(None, "--radius", help="Connectivity radius in m (default: the dataset's, 2.3 point spacings); new runs only."),
-    frame_stride: int = typer.Option(None, "--frame-stride", help="Dataset frames per GNS step, 1-16 (default 1; --resume and --init keep the checkpoint's)."),
+    frame_stride: int = typer.Option(None, "--frame-stride", help="Dataset frames per GNS step, 1-16 (default 1; --resume keeps the checkpoint's, --init keeps it unless this asks for another)."),
     pushforward: int = typer.Option(0, "--pushforward", help="Pushforward training, N = 0-10: each step rolls the model out n steps without gradient, n uniform in 0..N per step, and trains on the window it made (0: one-step training)."),
     noise_std: float = typer.Option(0.067, "--noise-std", help="Velocity noise std in m/s (converted to m per frame with the dataset's dt)."),
     latent: int = typer.Option(128, "--latent", help="Latent size of nodes and edges."),
