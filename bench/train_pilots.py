@@ -9,6 +9,8 @@ the last frame) and the mean position MSE over the rollout (m^2), beside the ste
 
     python bench/train_pilots.py --data data/base8 --out runs/pilots --minutes 10 --parallel 2
     python bench/train_pilots.py --data data/base8 --out runs/pilots --evaluate-only
+    python bench/train_pilots.py --data data/ft8 --out runs/ftpilots --init models/slope.pt \
+        --pilots ft-stride1 ft-stride2 ft-pushforward2 --minutes 22 --parallel 1 --threads 1
 
 Results go to OUT/pilots.json and a Markdown table on stdout (pasted into docs/training.md).
 """
@@ -34,11 +36,16 @@ PRESETS: dict[str, list[str]] = {
     "w64-lr4e-4-fp32": ["--latent", "64", "--hidden", "64", "--message-passing-steps", "5", "--lr", "4e-4"],
     "w128-lr4e-4": ["--latent", "128", "--hidden", "128", "--message-passing-steps", "5", "--bf16", "--lr", "4e-4"],
     "w128-mp10-lr4e-4": ["--latent", "128", "--hidden", "128", "--message-passing-steps", "10", "--bf16", "--lr", "4e-4"],
+    # from a campaign checkpoint (--init PATH): the campaign's schedule, one setting changed
+    "ft-stride1": [*W64, "--lr", "1e-4", "--lr-decay-steps", "300000"],
+    "ft-stride2": [*W64, "--lr", "1e-4", "--lr-decay-steps", "300000", "--frame-stride", "2"],
+    "ft-pushforward2": [*W64, "--lr", "1e-4", "--lr-decay-steps", "300000", "--pushforward", "2"],
 }
 
 
-def run_pilots(names: list[str], data: Path, out: Path, minutes: float, parallel: int) -> None:
-    threads = max(1, (os.cpu_count() or 2) // parallel)
+def run_pilots(names: list[str], data: Path, out: Path, minutes: float, parallel: int,
+               threads: int | None = None, init: Path | None = None) -> None:
+    threads = threads or max(1, (os.cpu_count() or 2) // parallel)
     env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
     queue = list(names)
     running: list[tuple[str, subprocess.Popen]] = []
@@ -47,9 +54,10 @@ def run_pilots(names: list[str], data: Path, out: Path, minutes: float, parallel
             name = queue.pop(0)
             run = out / name
             resume = ["--resume"] if (run / "checkpoint.pt").exists() else []
+            start = ["--init", str(init)] if init is not None and not resume else []
             cmd = [sys.executable, "-m", "runout", "train", "--data", str(data), "--out", str(run),
                    "--max-hours", f"{minutes / 60:.6f}", "--valid-every", "0", "--save-every", "500",
-                   "--log-every", "50", *PRESETS[name], *resume]
+                   "--log-every", "50", *PRESETS[name], *start, *resume]
             out.mkdir(parents=True, exist_ok=True)
             log = open(out / f"{name}.log", "a")  # beside the run folder, which runout owns
             print(f"start {name}: {' '.join(cmd[2:])}", flush=True)
@@ -61,7 +69,7 @@ def run_pilots(names: list[str], data: Path, out: Path, minutes: float, parallel
                 running.remove(item)
 
 
-def evaluate(names: list[str], data: Path, out: Path, n_valid: int) -> list[dict]:
+def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int | None = None) -> list[dict]:
     import numpy as np
     import torch
 
@@ -70,7 +78,7 @@ def evaluate(names: list[str], data: Path, out: Path, n_valid: int) -> list[dict
     from runout.gns.rollout import rollout_trajectory
     from runout.metrics import compare
 
-    torch.set_num_threads(os.cpu_count() or 1)
+    torch.set_num_threads(threads or os.cpu_count() or 1)
     truths = list(split_trajectories(data, "valid", n_valid))
     rows = []
     for name in names:
@@ -113,11 +121,13 @@ def main() -> None:
     ap.add_argument("--minutes", type=float, default=10.0, help="wall time of each pilot")
     ap.add_argument("--parallel", type=int, default=2, help="pilots at once (threads split between them)")
     ap.add_argument("--valid", type=int, default=6, help="validation trajectories rolled out per pilot")
+    ap.add_argument("--threads", type=int, default=None, help="threads per pilot (default: cores / --parallel)")
+    ap.add_argument("--init", type=Path, default=None, help="start every pilot from this checkpoint (the ft-* presets)")
     ap.add_argument("--evaluate-only", action="store_true")
     args = ap.parse_args()
     if not args.evaluate_only:
-        run_pilots(args.pilots, args.data, args.out, args.minutes, args.parallel)
-    rows = evaluate(args.pilots, args.data, args.out, args.valid)
+        run_pilots(args.pilots, args.data, args.out, args.minutes, args.parallel, args.threads, args.init)
+    rows = evaluate(args.pilots, args.data, args.out, args.valid, args.threads)
     (args.out / "pilots.json").write_text(json.dumps(rows, indent=2))
     print(table(rows))
 
