@@ -19,7 +19,10 @@ threads=${THREADS:-2}
 
 CELL=8          # m; 2 x 2 points per cell -> 4 m point spacing
 FRAMES=480
-NET=(--latent 64 --hidden 64 --message-passing-steps 5 --bf16 --batch-size 2)
+NET=(--latent 64 --hidden 64 --message-passing-steps 5 --batch-size 2)
+# bf16 autocast only where the CPU multiplies bfloat16 natively (AVX512-BF16 or AMX): on an
+# AVX2-only CPU PyTorch falls back to a generic kernel, 14x slower than float32 (docs/training.md)
+if grep -q -E 'avx512_bf16|amx_bf16' /proc/cpuinfo 2>/dev/null; then NET+=(--bf16); fi
 case "$stage" in
   base)     data=data/base8; count=320; run=runs/base8; model=models/base.pt
             schedule=(--lr 1e-4 --lr-decay-steps 300000); init=() ;;

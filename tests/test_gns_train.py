@@ -8,7 +8,7 @@ import torch
 import torch.multiprocessing as mp
 
 from runout.errors import InputError
-from runout.gns.checkpoint import load_simulator
+from runout.gns.checkpoint import load_simulator, read_checkpoint
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.simulator import NetworkConfig
 from runout.metrics import compare
@@ -143,3 +143,19 @@ def test_two_gloo_processes_keep_identical_parameters(tmp_path):
     assert all(torch.equal(a[k], b[k]) for k in a)
     saved = load_simulator(tmp_path / "run" / "checkpoint.pt").state_dict()
     assert all(torch.equal(a[k], saved[k]) for k in a)
+
+
+def test_bf16_on_a_cpu_without_native_bfloat16_trains_in_float32_and_says_so(tmp_path, monkeypatch, capsys):
+    """On an AVX2-only CPU bfloat16 matrix products run in a generic kernel, 14x slower than
+    float32: --bf16 there would slow training, so it falls back, with one warning."""
+    import runout.train as train_module
+
+    data = write_dataset(tmp_path / "data")
+    monkeypatch.setattr(train_module, "cpu_has_native_bf16", lambda: False)
+    train(config(data, tmp_path / "plain", steps=1, bf16=True))
+    assert "no native bfloat16" in "".join(capsys.readouterr())
+    assert read_checkpoint(tmp_path / "plain" / "checkpoint.pt")["train"]["bf16"] is False
+    monkeypatch.setattr(train_module, "cpu_has_native_bf16", lambda: True)
+    train(config(data, tmp_path / "native", steps=1, bf16=True))
+    assert "no native bfloat16" not in "".join(capsys.readouterr())
+    assert read_checkpoint(tmp_path / "native" / "checkpoint.pt")["train"]["bf16"] is True

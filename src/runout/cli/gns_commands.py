@@ -42,7 +42,7 @@ def train(
     valid_trajectories: int = typer.Option(1, "--valid-trajectories", help="Validation trajectories rolled out each time."),
     valid_frames: int = typer.Option(0, "--valid-frames", help="Frames per validation rollout (0: whole trajectory)."),
     seed: int = typer.Option(0, "--seed", help="Seed of the initial weights, window sampling and noise."),
-    bf16: bool = typer.Option(False, "--bf16", help="Autocast the network to bfloat16 (faster on CPUs with AMX and on GPUs)."),
+    bf16: bool = typer.Option(False, "--bf16", help="Autocast the network to bfloat16 (faster on GPUs and on CPUs with AVX512-BF16 or AMX; elsewhere on a CPU it trains in float32, with a warning)."),
     checkpoint_layers: bool = typer.Option(True, "--checkpoint-layers/--no-checkpoint-layers", help="Recompute processor steps in backward to save memory."),
     force: bool = typer.Option(False, "--force", help="Start afresh in --out, removing a previous run or another command's results there."),
 ) -> None:
