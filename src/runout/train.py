@@ -300,8 +300,7 @@ def _build(cfg: TrainConfig, meta: dict, data: Simulations):
         offset = int(base.get("step", 0)) + base.get("train", {}).get("lr_step_offset", 0)
         return simulator, None, replace(cfg, lr_step_offset=offset, frame_stride=simulator.frame_stride)
     stride = cfg.frame_stride or 1
-    noise = cfg.noise_velocity_std * float(meta.get("dt", FRAME_DT)) * stride  # m/s -> m per step of `stride` frames
-    stats = Normalisation.from_metadata(_statistics(meta, data, stride), noise)
+    stats = _stride_statistics(meta, data, stride, cfg.noise_velocity_std)
     schema = data.schema(FeatureSchema(frame_stride=stride))
     torch.manual_seed(cfg.seed)
     radius = cfg.radius if cfg.radius is not None else float(meta["default_connectivity_radius"])
@@ -314,15 +313,14 @@ def _restride(simulator: Simulator, stride: int, meta: dict, data: Simulations, 
     K-frame differences, with the noise scaled to a K-frame step. The network sees inputs and
     targets normalised as before (velocities and accelerations in units of their own spread),
     so its weights are a warm start for the longer step, not a model of it."""
-    noise = noise_velocity_std * float(meta.get("dt", FRAME_DT)) * stride
-    stats = Normalisation.from_metadata(_statistics(meta, data, stride), noise)
     simulator.schema = replace(simulator.schema, frame_stride=stride)
-    simulator.stats = stats
-    noise2 = stats.noise_std**2
-    for name, value in (("vel_mean", stats.vel_mean), ("acc_mean", stats.acc_mean),
-                        ("vel_scale", torch.tensor(stats.vel_std).square().add(noise2).sqrt()),
-                        ("acc_scale", torch.tensor(stats.acc_std).square().add(noise2).sqrt())):
-        getattr(simulator, name).copy_(torch.as_tensor(value, dtype=getattr(simulator, name).dtype))
+    simulator.use_statistics(_stride_statistics(meta, data, stride, noise_velocity_std))
+
+
+def _stride_statistics(meta: dict, data: Simulations, stride: int, noise_velocity_std: float) -> Normalisation:
+    """Normalisation at `stride` frames per step, the noise converted from m/s to m per step."""
+    noise = noise_velocity_std * float(meta.get("dt", FRAME_DT)) * stride
+    return Normalisation.from_metadata(_statistics(meta, data, stride), noise)
 
 
 def _check_whole(option: str, value: int | None, lo: int, hi: int) -> None:

@@ -117,6 +117,18 @@ class Case:
         return torch.clamp(predicted, self.bounds[:, 0], self.bounds[:, 1])
 
 
+def _normalisation_buffers(stats: Normalisation) -> dict[str, torch.Tensor]:
+    """Means and scales of velocities and accelerations; the scales are the statistics widened
+    by the training noise, as in the public GNS."""
+    noise2 = stats.noise_std**2
+    return {
+        "vel_mean": torch.tensor(stats.vel_mean),
+        "vel_scale": torch.tensor(stats.vel_std).square().add(noise2).sqrt(),
+        "acc_mean": torch.tensor(stats.acc_mean),
+        "acc_scale": torch.tensor(stats.acc_std).square().add(noise2).sqrt(),
+    }
+
+
 class Simulator(nn.Module):
     """GNS: maps a window of `schema.history` positions per point to the next positions."""
 
@@ -132,11 +144,14 @@ class Simulator(nn.Module):
             schema.node_width, schema.edge_width, schema.dim,
             config.latent, config.hidden, config.hidden_layers, config.message_passing_steps,
         )
-        noise2 = stats.noise_std**2  # input statistics widened by the noise, as in the public GNS
-        self.register_buffer("vel_mean", torch.tensor(stats.vel_mean))
-        self.register_buffer("vel_scale", torch.tensor(stats.vel_std).square().add(noise2).sqrt())
-        self.register_buffer("acc_mean", torch.tensor(stats.acc_mean))
-        self.register_buffer("acc_scale", torch.tensor(stats.acc_std).square().add(noise2).sqrt())
+        for name, value in _normalisation_buffers(stats).items():
+            self.register_buffer(name, value)
+
+    def use_statistics(self, stats: Normalisation) -> None:
+        """Normalise with other dataset statistics from now on (same weights)."""
+        self.stats = stats
+        for name, value in _normalisation_buffers(stats).items():
+            getattr(self, name).copy_(value)
 
     @property
     def frame_stride(self) -> int:
