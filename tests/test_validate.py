@@ -58,6 +58,17 @@ def test_block_slides_on_thick_fixed_ground_as_coulomb_says(cell):
     assert abs(travel - expected) < 0.03 * expected, f"travel {travel:.2f} m, Coulomb {expected:.2f} m"
 
 
+def test_dry_column_runs_out_inside_the_experimental_band():
+    """A dry a = 1 column (100 m, phi 25, c = 0) at 8 m cells against the 2D experiments and DEM
+    (L^n 1.2 ... 1.67, +-25 %). In solver 3 the column's top corner glided on as a thin sheet of
+    stress-free points that kept the shear profile they carried over the base (their affine
+    velocity) and ended at L^n 2.18; as loose clods without affine velocity they stop near 1.2."""
+    from runout.validate import case_dry_columns
+
+    res = case_dry_columns(8.0, 600, aspects=(1.0,))[0][0]
+    assert res.met, f"L^n = {res.measured:.3f}, allowed [{res.low:.2f}, {res.high:.2f}]"
+
+
 def test_report_lists_every_check_with_its_figure(tmp_path):
     results = run_validation(tmp_path, cases=["cuts"], command="runout validate --case cuts", progress=lambda s: None)
     text = (tmp_path / "validation.md").read_text()

@@ -6,6 +6,8 @@ the dataclasses in runout.scene.model use the same numbers.
 
 from __future__ import annotations
 
+import math
+
 GRAVITY = 9.81  # m/s^2, downwards (-y); the MPM imports it from here
 
 # Particle types of the GNS format (geoelements/gns).
@@ -18,7 +20,8 @@ CFL = 0.4  # Courant number on dx / (c_p + v_max)
 
 CELL_SIZE = 4.0  # m, square background-grid cells
 POINTS_PER_CELL = 2  # per direction: 2 -> 4 points per cell
-BASE_FRICTION = 0.38  # Coulomb coefficient on the base and on fixed ground
+ROUGH = math.inf  # base_friction "rough": no slip; the soil above shears on its own strength
+BASE_FRICTION = ROUGH  # on the base and on fixed ground (a number: Coulomb coefficient); docs/scene-format.md
 WALL_FRICTION = 0.38  # on the side walls (and top); 0 = free slip
 
 # Mohr-Coulomb soil.

@@ -119,12 +119,17 @@ def p2g(pts: Points, grid: Grid, dt: float):
 
 def _coulomb(v, normal, mu):
     """Remove the velocity into a rigid surface (outward normal) and reduce the tangential
-    velocity by mu times the removed normal velocity (Coulomb friction, stick if it fits)."""
+    velocity by mu times the removed normal velocity (Coulomb friction, stick if it fits).
+    mu = inf is a rough surface: a node pressing on it sticks (no slip), so the soil above
+    slides only by shearing on its own strength; a node moving away from it is free."""
     vn = (v * normal).sum(-1, keepdim=True)
     hit = vn < 0
     vt = v - vn * normal
     speed_t = vt.norm(dim=-1, keepdim=True)
-    scale = torch.clamp(1.0 + mu[:, None] * vn / speed_t.clamp_min(1e-12), min=0.0)
+    rough = torch.isinf(mu)[:, None]
+    finite_mu = torch.where(rough, torch.zeros_like(mu[:, None]), mu[:, None])
+    scale = torch.clamp(1.0 + finite_mu * vn / speed_t.clamp_min(1e-12), min=0.0)
+    scale = torch.where(rough, torch.zeros_like(scale), scale)
     return torch.where(hit, vt * scale, v)
 
 
@@ -172,6 +177,7 @@ def g2p(pts: Points, v_grid, v_before, cache, grid: Grid, dt: float, flip: float
     pts.x = torch.minimum(torch.clamp(x, min=eps), pts.upper - eps)
 
 
+LOOSE = 1.16  # volume ratio beyond which a point has no contact network: random close / loose packing 0.64 / 0.55
 DILUTE = 2.0  # volume ratio beyond which a point is dilute (no contacts, no stress)
 
 
@@ -187,6 +193,13 @@ def substep(pts: Points, grid: Grid, dt: float, flip: float = 0.0, damping: floa
     # has lost its contacts (and its cohesion); it takes stress again, from zero, once packed
     loose = pts.volume > DILUTE * pts.rest_volume
     pts.stress = torch.where(loose[:, None], torch.zeros_like(pts.stress), pts.stress)
+    # a point spread beyond the loosest packing that keeps a contact network is a loose clod:
+    # it takes no part in the continuum's velocity field, so it keeps no affine velocity and its
+    # momentum meets its neighbours' on the grid as a lump, a perfectly inelastic collision
+    # (soil clods do not bounce). Without this a thin sheet of opened, stress-free points kept
+    # the shear profile it carried over the base nodes and glided on (docs/scene-format.md)
+    unpacked = pts.volume > LOOSE * pts.rest_volume
+    pts.C = torch.where(unpacked[:, None, None], torch.zeros_like(pts.C), pts.C)
 
 
 def energies(pts: Points, n_scenes: int) -> tuple[torch.Tensor, torch.Tensor]:

@@ -11,6 +11,7 @@ import tomllib
 from dataclasses import asdict
 from pathlib import Path
 
+from runout.defaults import ROUGH
 from runout.errors import InputError
 from runout.scene.model import Domain, Material, Region, Scene, TimeSpec
 from runout.scene.validation import validate_scene
@@ -50,6 +51,15 @@ def _number(table: dict, key: str, where: str, source: str, default=None) -> flo
     return float(value)
 
 
+def _friction(table: dict, key: str, source: str, default: float) -> float:
+    """A Coulomb coefficient, or "rough" (no slip: math.inf)."""
+    if table.get(key) == "rough":
+        return ROUGH
+    if isinstance(table.get(key), str):
+        raise InputError(f"{source}: domain.{key} = {table[key]!r} must be a number in [0, 10] or \"rough\".")
+    return _number(table, key, "domain", source, default)
+
+
 def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     """Build and validate a Scene from the dictionary form of a scene file."""
     check_keys(data, _TOP_KEYS, "top level", source)
@@ -67,7 +77,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
         height=_number(d, "height", "domain", source),
         cell_size=_number(d, "cell_size", "domain", source, Domain.cell_size),
         points_per_cell=ppc,
-        base_friction=_number(d, "base_friction", "domain", source, Domain.base_friction),
+        base_friction=_friction(d, "base_friction", source, Domain.base_friction),
         wall_friction=_number(d, "wall_friction", "domain", source, Domain.wall_friction),
     )
 
@@ -166,7 +176,8 @@ def load_scene(path: str | Path) -> Scene:
 def scene_to_dict(scene: Scene) -> dict:
     out = {
         "name": scene.name,
-        "domain": asdict(scene.domain),
+        "domain": {k: ("rough" if k == "base_friction" and v == ROUGH else v)
+                   for k, v in asdict(scene.domain).items()},
         "time": asdict(scene.time),
         "materials": {},
         "regions": [],

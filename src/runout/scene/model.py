@@ -23,7 +23,7 @@ class Domain:
     height: float
     cell_size: float = defaults.CELL_SIZE  # m, square background-grid cells
     points_per_cell: int = defaults.POINTS_PER_CELL  # per direction: 2 -> 4 points per cell
-    base_friction: float = defaults.BASE_FRICTION  # Coulomb coefficient on the base and on fixed ground
+    base_friction: float = defaults.BASE_FRICTION  # on the base and fixed ground: Coulomb mu, or inf ("rough": no slip)
     wall_friction: float = defaults.WALL_FRICTION  # on the side walls (and top); 0 = free slip
 
     @property

@@ -51,7 +51,8 @@ def validate_scene(scene: Scene, source: str = "<scene>") -> None:
             f"{candidates:.3g} candidate points, more than the {MAX_LATTICE_POINTS:.3g} allowed; "
             "use a larger domain.cell_size or a smaller domain."
         )
-    _in_range(d.base_friction, 0, 10, "base_friction", "domain", source)
+    if d.base_friction != math.inf:  # inf: "rough", no slip
+        _in_range(d.base_friction, 0, 10, "base_friction", "domain", source)
     _in_range(d.wall_friction, 0, 10, "wall_friction", "domain", source)
     t = scene.time
     _in_range(t.frame_dt, 0, 10, "frame_dt", "time", source, " s", lo_open=True)
