@@ -194,11 +194,12 @@ def test_runout_converges_in_time_step_and_point_density():
 def test_rough_base_holds_a_pressing_node_and_frees_a_leaving_one():
     """base_friction "rough" (mu = inf): a node pressing on the base sticks, one moving away keeps
     its velocity, a finite mu still slides by Coulomb; gradients stay finite (the MPM-AD path)."""
-    from runout.mpm.solver import _coulomb
+    from runout.mpm.solver import Constraint, _coulomb
 
     v = torch.tensor([[5.0, -1.0], [5.0, 2.0], [5.0, -1.0]], dtype=torch.float64, requires_grad=True)
     normal = torch.tensor([[0.0, 1.0]] * 3, dtype=torch.float64)
-    out = _coulomb(v, normal, torch.tensor([math.inf, math.inf, 0.38], dtype=torch.float64))
+    mu = torch.tensor([math.inf, math.inf, 0.38], dtype=torch.float64)
+    out = _coulomb(v, Constraint(torch.arange(3), normal, mu))
     assert out[0].tolist() == [0.0, 0.0]
     assert out[1].tolist() == [5.0, 2.0]
     assert out[2].tolist() == pytest.approx([5.0 - 0.38, 0.0])

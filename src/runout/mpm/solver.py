@@ -10,7 +10,7 @@ index_add serves all scenes and no scene ever touches another's nodes.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
@@ -23,11 +23,18 @@ _OFFSETS = [(a, b) for a in range(3) for b in range(3)]
 
 @dataclass
 class Constraint:
-    """Rigid frictional surface on a set of grid nodes: outward unit normals, Coulomb mu."""
+    """Rigid frictional surface on a set of grid nodes: outward unit normals, Coulomb mu
+    (inf: rough, no slip). The rough mask and the finite mu the return uses are made once here."""
 
     ids: torch.Tensor  # [B] node ids (no id twice within one constraint)
     normal: torch.Tensor  # [B, 2]
     mu: torch.Tensor  # [B]
+    rough: torch.Tensor = field(init=False)  # [B, 1] bool: mu = inf
+    finite_mu: torch.Tensor = field(init=False)  # [B, 1]: mu, 0 where rough
+
+    def __post_init__(self) -> None:
+        self.rough = torch.isinf(self.mu)[:, None]
+        self.finite_mu = torch.where(self.rough, torch.zeros_like(self.mu[:, None]), self.mu[:, None])
 
 
 @dataclass
@@ -117,19 +124,17 @@ def p2g(pts: Points, grid: Grid, dt: float):
     return m_grid, p_grid, (ids, w, fx)
 
 
-def _coulomb(v, normal, mu):
+def _coulomb(v, c: Constraint):
     """Remove the velocity into a rigid surface (outward normal) and reduce the tangential
     velocity by mu times the removed normal velocity (Coulomb friction, stick if it fits).
     mu = inf is a rough surface: a node pressing on it sticks (no slip), so the soil above
     slides only by shearing on its own strength; a node moving away from it is free."""
-    vn = (v * normal).sum(-1, keepdim=True)
+    vn = (v * c.normal).sum(-1, keepdim=True)
     hit = vn < 0
-    vt = v - vn * normal
+    vt = v - vn * c.normal
     speed_t = vt.norm(dim=-1, keepdim=True)
-    rough = torch.isinf(mu)[:, None]
-    finite_mu = torch.where(rough, torch.zeros_like(mu[:, None]), mu[:, None])
-    scale = torch.clamp(1.0 + finite_mu * vn / speed_t.clamp_min(1e-12), min=0.0)
-    scale = torch.where(rough, torch.zeros_like(scale), scale)
+    scale = torch.clamp(1.0 + c.finite_mu * vn / speed_t.clamp_min(1e-12), min=0.0)
+    scale = torch.where(c.rough, torch.zeros_like(scale), scale)
     return torch.where(hit, vt * scale, v)
 
 
@@ -151,7 +156,7 @@ def grid_update(m_grid, p_grid, grid: Grid, dt: float, damping: float = 0.0):
     v = v_before + dv
     v = torch.where(has_mass, v, torch.zeros_like(v))
     for c in grid.constraints:
-        v[c.ids] = _coulomb(v[c.ids], c.normal, c.mu)
+        v[c.ids] = _coulomb(v[c.ids], c)
     v[grid.stuck] = 0.0
     return v, v_before
 
