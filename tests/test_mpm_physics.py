@@ -167,14 +167,12 @@ def test_mirror_symmetric_scene_gives_mirror_symmetric_deposit():
     assert mismatch_x < 0.5 and mismatch_y < 0.5, f"asymmetry {mismatch_x:.3f} m, {mismatch_y:.3f} m"
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "solver 4 (rough base, loose clods without affine velocity): this 16-cell column's settled "
-    "runout falls 7 % with dt/2 (69.7 -> 64.8 m); docs/scene-format.md, 'Still open'. "
-    "Open in the MPM fidelity issue."))
 def test_runout_converges_in_time_step_and_point_density():
     """A 64 m column (16 cells wide), read once it has come to rest (400 frames: at 200 it was
     still moving). The front is the 99th percentile of point x, so the few points thrown ahead
-    of the deposit do not decide it."""
+    of the deposit do not decide it. Solver 4 (a fixed FLIP share of 0 per substep, APIC) failed
+    it: the runout fell 7 % with dt/2 (69.7 -> 64.8 m), its transfers dissipating more the more
+    substeps there were; solver 5's FLIP share is a fixed rate in time."""
 
     def scene(**kw):
         mats = {"soil": {"friction_angle": 25.0, "cohesion": 5.0}}
@@ -189,6 +187,23 @@ def test_runout_converges_in_time_step_and_point_density():
     for other, label in ((t_half, "dt halved"), (t_dense, "3 x 3 points per cell")):
         change = abs(runout(other) - runout(t_base)) / runout(t_base)
         assert change < 0.05, f"runout changed by {change:.1%} with {label}"
+
+
+def test_flip_share_wave_is_a_fixed_rate_in_time():
+    """flip = "wave": the sub-grid part of a point's velocity decays as exp(-t c_p / dx), so two
+    substeps of dt/2 keep what one of dt keeps; a number stays a fixed share per substep."""
+    from runout.mpm.solver import flip_share, p_wave_speed
+
+    scene = column(16.0, 16.0, frames=2)
+    batch = build_batch([scene], torch.device("cpu"), torch.float64)
+    dt, dx = 0.004, batch.grid.dx
+    c_p = p_wave_speed(40e6, 0.3, 1800.0)  # the default soil, m/s
+    one = flip_share(batch.pts, batch.grid, dt, "wave")
+    half = flip_share(batch.pts, batch.grid, dt / 2, "wave")
+    assert one.shape == (batch.pts.x.shape[0], 1)
+    assert torch.allclose(one, torch.full_like(one, math.exp(-dt * c_p / dx)), rtol=1e-9)
+    assert torch.allclose(half * half, one, rtol=1e-12)
+    assert flip_share(batch.pts, batch.grid, dt, 0.25) == 0.25
 
 
 def test_rough_base_holds_a_pressing_node_and_frees_a_leaving_one():

@@ -53,6 +53,16 @@ def test_examples_load_and_fill():
         assert len(fill_points(scene)) > 100, path.name
 
 
+def test_flip_defaults_to_wave_and_round_trips(tmp_path):
+    """The FLIP share is "wave" (a fixed rate in time) unless a scene gives a number."""
+    scene = scene_from_dict(GOOD, "good")
+    assert scene.time.flip == "wave"
+    apic = scene_from_dict({**GOOD, "time": {"flip": 0.0}}, "apic")
+    assert apic.time.flip == 0.0
+    save_scene(scene, tmp_path / "s.toml")
+    assert load_scene(tmp_path / "s.toml").time.flip == "wave"
+
+
 def test_toml_round_trip(tmp_path):
     scene = scene_from_dict(GOOD, "good")
     save_scene(scene, tmp_path / "s.toml")
@@ -116,6 +126,8 @@ def test_shared_edge_points_belong_to_one_region():
         ({"materials__sand__cohesion": "ten"}, "must be a finite number"),
         ({"domain__base_friction": "smooth"}, "base_friction = 'smooth' must be a number in [0, 10] or \"rough\""),
         ({"domain__base_friction": 11.0}, "base_friction = 11 is outside the allowed range [0, 10]"),
+        ({"time": {"flip": "apic"}}, "time.flip = 'apic' must be a number in [0, 1] or \"wave\""),
+        ({"time": {"flip": 1.5}}, "flip = 1.5 is outside the allowed range [0, 1]"),
     ],
 )
 def test_bad_scene_gives_one_clear_sentence(edits, words):

@@ -17,6 +17,8 @@ PARTICLE_TYPE_SOIL = 6
 FRAME_DT = 0.0375  # s between output frames (375 steps of 1e-4 s in the reference MPM)
 FRAMES = 480
 CFL = 0.4  # Courant number on dx / (c_p + v_max)
+FLIP_WAVE = "wave"  # the FLIP share exp(-dt c_p / dx) per substep: a fixed rate in time (runout.mpm.solver.flip_share)
+FLIP = FLIP_WAVE  # FLIP share of the point-velocity update: FLIP_WAVE, or a fixed share per substep in [0, 1]
 
 CELL_SIZE = 4.0  # m, square background-grid cells
 POINTS_PER_CELL = 2  # per direction: 2 -> 4 points per cell

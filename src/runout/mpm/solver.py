@@ -1,8 +1,8 @@
 """Explicit plane-strain MPM, batched over scenes in one flat point array.
 
-The scheme: quadratic B-spline shape functions with APIC transfers (MLS-MPM force form),
-update-stress-last: p2g -> grid_update -> g2p -> update_stress. Units: m, s, kg per metre of
-thickness, Pa. Stress tension positive. Each scene owns a block of a flat background grid
+The scheme: quadratic B-spline shape functions with APIC transfers (MLS-MPM force form) and
+a FLIP share that is a fixed rate in time (flip_share), update-stress-last:
+p2g -> grid_update -> g2p -> update_stress. Units: m, s, kg per metre of thickness, Pa. Stress tension positive. Each scene owns a block of a flat background grid
 (padded by PAD nodes beyond every wall); a point knows its scene's block offset, so one
 index_add serves all scenes and no scene ever touches another's nodes.
 """
@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from runout.defaults import FLIP_WAVE
 from runout.mpm.geostatic import GRAVITY
 from runout.mpm.mohr_coulomb import MaterialArrays, update_stress
 
@@ -165,8 +166,7 @@ def g2p(pts: Points, v_grid, v_before, cache, grid: Grid, dt: float, flip: float
     """Gather velocity and its gradient (APIC C), move the points, clamp them inside.
 
     The point velocity blends FLIP (old velocity plus the grid's change) with PIC/APIC (the
-    new grid velocity): transfers alone dissipate energy at every substep, so without FLIP
-    the runout would shrink as the time step is refined."""
+    new grid velocity) by `flip`, a number or a [P, 1] tensor of shares (see flip_share)."""
     ids, w, fx = cache
     wv = w[..., None] * v_grid[ids]  # [P, 9, 2]
     v_pic = wv.sum(1)
@@ -182,14 +182,33 @@ def g2p(pts: Points, v_grid, v_before, cache, grid: Grid, dt: float, flip: float
     pts.x = torch.minimum(torch.clamp(x, min=eps), pts.upper - eps)
 
 
+WAVE = FLIP_WAVE  # "wave", the default FLIP share: exp(-dt c_p / dx) per point (flip_share)
+
+
+def flip_share(pts: Points, grid: Grid, dt: float, flip: float | str):
+    """FLIP share of the point-velocity update for one substep of dt seconds.
+
+    A number is a fixed share per substep (0: APIC, 1: pure FLIP). "wave" makes the part of a
+    point's velocity that the grid cannot represent decay at a fixed rate in time: by
+    exp(-dt / tau) per substep, tau = dx / c_p the time an elastic wave of the point's packed
+    soil takes to cross one cell (c_p = sqrt((lambda + 2G) / rho)). A fixed share loses a
+    fixed fraction of that velocity at every substep, so its dissipation grows with the
+    number of substeps and the runout fell as dt was refined; a fixed rate does not depend on
+    dt (docs/scene-format.md, solver version 5). Returns a float or a [P, 1] tensor."""
+    if flip != WAVE:
+        return flip
+    c_p = torch.sqrt(pts.mat.k * pts.rest_volume / pts.mass)  # m/s, at the packed density
+    return torch.exp(-(dt / grid.dx) * c_p)[:, None]
+
+
 LOOSE = 1.16  # volume ratio beyond which a point has no contact network: random close / loose packing 0.64 / 0.55
 DILUTE = 2.0  # volume ratio beyond which a point is dilute (no contacts, no stress)
 
 
-def substep(pts: Points, grid: Grid, dt: float, flip: float = 0.0, damping: float = 0.0) -> None:
+def substep(pts: Points, grid: Grid, dt: float, flip: float | str = WAVE, damping: float = 0.0) -> None:
     m_grid, p_grid, cache = p2g(pts, grid, dt)
     v_grid, v_before = grid_update(m_grid, p_grid, grid, dt, damping)
-    g2p(pts, v_grid, v_before, cache, grid, dt, flip)
+    g2p(pts, v_grid, v_before, cache, grid, dt, flip_share(pts, grid, dt, flip))
     grad_v = pts.C
     pts.stress = update_stress(pts.stress, grad_v, dt, pts.mat)
     j = (1 + dt * grad_v[:, 0, 0]) * (1 + dt * grad_v[:, 1, 1]) - dt * dt * grad_v[:, 0, 1] * grad_v[:, 1, 0]

@@ -11,7 +11,7 @@ import tomllib
 from dataclasses import asdict
 from pathlib import Path
 
-from runout.defaults import ROUGH
+from runout.defaults import FLIP_WAVE, ROUGH
 from runout.errors import InputError
 from runout.scene.model import Domain, Material, Region, Scene, TimeSpec
 from runout.scene.validation import validate_scene
@@ -60,6 +60,15 @@ def _friction(table: dict, key: str, source: str, default: float) -> float:
     return _number(table, key, "domain", source, default)
 
 
+def _flip(table: dict, source: str) -> float | str:
+    """The FLIP share: "wave" (a fixed rate in time, the default) or a fixed share per substep."""
+    if table.get("flip") == FLIP_WAVE:
+        return FLIP_WAVE
+    if isinstance(table.get("flip"), str):
+        raise InputError(f"{source}: time.flip = {table['flip']!r} must be a number in [0, 1] or \"wave\".")
+    return _number(table, "flip", "time", source, TimeSpec.flip)
+
+
 def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
     """Build and validate a Scene from the dictionary form of a scene file."""
     check_keys(data, _TOP_KEYS, "top level", source)
@@ -90,7 +99,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
         frame_dt=_number(t, "frame_dt", "time", source, TimeSpec.frame_dt),
         frames=frames,
         cfl=_number(t, "cfl", "time", source, TimeSpec.cfl),
-        flip=_number(t, "flip", "time", source, TimeSpec.flip),
+        flip=_flip(t, source),
         damping=_number(t, "damping", "time", source, TimeSpec.damping),
     )
 

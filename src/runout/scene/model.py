@@ -36,7 +36,7 @@ class TimeSpec:
     frame_dt: float = defaults.FRAME_DT  # s between output frames
     frames: int = defaults.FRAMES
     cfl: float = defaults.CFL  # Courant number on dx / (c_p + v_max); the substep count follows
-    flip: float = 0.0  # FLIP share of the point-velocity update (the rest APIC); see docs/scene-format.md
+    flip: float | str = defaults.FLIP  # FLIP share of the point-velocity update (the rest APIC): "wave" or [0, 1]; docs/scene-format.md
     damping: float = 0.0  # local (Cundall) damping share of the unbalanced nodal force (the reference MPM used 0.05)
 
 
