@@ -198,12 +198,12 @@ def test_flip_share_wave_is_a_fixed_rate_in_time():
     batch = build_batch([scene], torch.device("cpu"), torch.float64)
     dt, dx = 0.004, batch.grid.dx
     c_p = p_wave_speed(40e6, 0.3, 1800.0)  # the default soil, m/s
-    one = flip_share(batch.pts, batch.grid, dt, "wave")
-    half = flip_share(batch.pts, batch.grid, dt / 2, "wave")
+    one = flip_share(batch.pts, dt, "wave")
+    half = flip_share(batch.pts, dt / 2, "wave")
     assert one.shape == (batch.pts.x.shape[0], 1)
     assert torch.allclose(one, torch.full_like(one, math.exp(-dt * c_p / dx)), rtol=1e-9)
     assert torch.allclose(half * half, one, rtol=1e-12)
-    assert flip_share(batch.pts, batch.grid, dt, 0.25) == 0.25
+    assert flip_share(batch.pts, dt, 0.25) == 0.25
 
 
 def test_rough_base_holds_a_pressing_node_and_frees_a_leaving_one():

@@ -138,6 +138,7 @@ def build_batch(scenes: list[Scene], device: torch.device, dtype: torch.dtype) -
         mass=t(np.concatenate(mass), dtype), scene=scene_t,
         upper=t(np.concatenate(upper), dtype), mat=mat,
         node_base=grid.node_offset[scene_t], ny=ny_p, stencil_offsets=stencil_offsets(ny_p),
+        wave_rate=torch.sqrt(mat.k * t(np.concatenate(vol), dtype) / t(np.concatenate(mass), dtype)) / grid.dx,
     )
     n_sub = substeps_per_frame(scenes[0])
     time = scenes[0].time

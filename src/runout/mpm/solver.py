@@ -2,9 +2,10 @@
 
 The scheme: quadratic B-spline shape functions with APIC transfers (MLS-MPM force form) and
 a FLIP share that is a fixed rate in time (flip_share), update-stress-last:
-p2g -> grid_update -> g2p -> update_stress. Units: m, s, kg per metre of thickness, Pa. Stress tension positive. Each scene owns a block of a flat background grid
-(padded by PAD nodes beyond every wall); a point knows its scene's block offset, so one
-index_add serves all scenes and no scene ever touches another's nodes.
+p2g -> grid_update -> g2p -> update_stress. Units: m, s, kg per metre of thickness, Pa.
+Stress tension positive. Each scene owns a block of a flat background grid (padded by PAD
+nodes beyond every wall); a point knows its scene's block offset, so one index_add serves all
+scenes and no scene ever touches another's nodes.
 """
 
 from __future__ import annotations
@@ -68,6 +69,7 @@ class Points:
     node_base: torch.Tensor  # [P] first grid node of the point's scene
     ny: torch.Tensor  # [P] nodes per grid column of the point's scene
     stencil_offsets: torch.Tensor  # [P, 9] node-id offsets a * ny + b of the 3 x 3 stencil
+    wave_rate: torch.Tensor  # [P] c_p / dx of the point's packed soil, 1/s (flip_share)
 
 
 def stencil(x: torch.Tensor, node_base: torch.Tensor, ny: torch.Tensor, offsets: torch.Tensor, dx: float):
@@ -182,10 +184,7 @@ def g2p(pts: Points, v_grid, v_before, cache, grid: Grid, dt: float, flip: float
     pts.x = torch.minimum(torch.clamp(x, min=eps), pts.upper - eps)
 
 
-WAVE = FLIP_WAVE  # "wave", the default FLIP share: exp(-dt c_p / dx) per point (flip_share)
-
-
-def flip_share(pts: Points, grid: Grid, dt: float, flip: float | str):
+def flip_share(pts: Points, dt: float, flip: float | str):
     """FLIP share of the point-velocity update for one substep of dt seconds.
 
     A number is a fixed share per substep (0: APIC, 1: pure FLIP). "wave" makes the part of a
@@ -195,20 +194,19 @@ def flip_share(pts: Points, grid: Grid, dt: float, flip: float | str):
     fixed fraction of that velocity at every substep, so its dissipation grows with the
     number of substeps and the runout fell as dt was refined; a fixed rate does not depend on
     dt (docs/scene-format.md, solver version 5). Returns a float or a [P, 1] tensor."""
-    if flip != WAVE:
+    if flip != FLIP_WAVE:
         return flip
-    c_p = torch.sqrt(pts.mat.k * pts.rest_volume / pts.mass)  # m/s, at the packed density
-    return torch.exp(-(dt / grid.dx) * c_p)[:, None]
+    return torch.exp(-dt * pts.wave_rate)[:, None]
 
 
 LOOSE = 1.16  # volume ratio beyond which a point has no contact network: random close / loose packing 0.64 / 0.55
 DILUTE = 2.0  # volume ratio beyond which a point is dilute (no contacts, no stress)
 
 
-def substep(pts: Points, grid: Grid, dt: float, flip: float | str = WAVE, damping: float = 0.0) -> None:
+def substep(pts: Points, grid: Grid, dt: float, flip: float | str = FLIP_WAVE, damping: float = 0.0) -> None:
     m_grid, p_grid, cache = p2g(pts, grid, dt)
     v_grid, v_before = grid_update(m_grid, p_grid, grid, dt, damping)
-    g2p(pts, v_grid, v_before, cache, grid, dt, flip_share(pts, grid, dt, flip))
+    g2p(pts, v_grid, v_before, cache, grid, dt, flip_share(pts, dt, flip))
     grad_v = pts.C
     pts.stress = update_stress(pts.stress, grad_v, dt, pts.mat)
     j = (1 + dt * grad_v[:, 0, 0]) * (1 + dt * grad_v[:, 1, 1]) - dt * dt * grad_v[:, 0, 1] * grad_v[:, 1, 0]
