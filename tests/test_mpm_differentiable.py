@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 import torch
@@ -61,6 +63,25 @@ def test_ad_gradient_equals_central_differences(scene):
             fd = float(up - down) / (2 * step)
             assert abs(fd) > 1e-6  # m^2 per degree or kPa: a real sensitivity, not zero against zero
             assert float(grad[k]) == pytest.approx(fd, rel=5e-3)  # measured: 1e-8 (phi), 1e-3 (c)
+
+
+@pytest.mark.skipif(not os.environ.get("RUNOUT_COMPILE_TESTS"),
+                    reason="compiles four graphs, 2-4 minutes on a 2-core CPU: set RUNOUT_COMPILE_TESTS=1")
+def test_compiled_is_the_same_run_and_gradient(scene):
+    """compile=True (torch.compile of each frame's substeps; 2-4 minutes of compilation on a
+    2-core CPU, seconds from torch's disk cache) gives the eager positions and gradient to rounding."""
+    frames = [3]
+    phi0, c0 = material_values(scene)
+    results = []
+    for compile in (False, True):
+        model = DifferentiableMpm(scene, frames, compile=compile)
+        phi, c = torch.tensor(phi0, requires_grad=True), torch.tensor(c0, requires_grad=True)
+        x = model(phi, c)
+        (x - x.detach().mean((0, 1))).square().sum().backward()
+        results.append((x.detach(), phi.grad, c.grad))
+    for eager, compiled in zip(*results):
+        assert torch.allclose(compiled, eager, rtol=1e-10, atol=1e-10 * float(eager.abs().max()))
+    assert float(results[0][2][:2].abs().min()) > 0  # real sensitivities
 
 
 def peak_bytes(scene, frames: int, checkpoint: bool) -> int:

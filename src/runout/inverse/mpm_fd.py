@@ -26,7 +26,7 @@ class MpmFiniteDifference:
     """Evaluator: physical values [P] -> Evaluation (loss and finite-difference gradient)."""
 
     def __init__(self, spec: InverseSpec, observation: Observation, step: float = 0.01,
-                 device: str = "cpu", progress: bool = False):
+                 device: str = "cpu", progress: bool = False, compile: bool = False):
         if not 0.0 < step <= 0.5:
             raise InputError(f"--fd-step = {step:g} must be in (0, 0.5], a fraction of each parameter's bounds.")
         self.spec = spec
@@ -35,6 +35,7 @@ class MpmFiniteDifference:
         self.step = step
         self.device = device
         self.progress = progress
+        self.compile = compile  # torch.compile the substep (runout.mpm.simulate): faster, slow first call
         self.target = torch.tensor(observation.positions, dtype=torch.float64)
         self.weights = torch.tensor(observation.weights(spec.loss), dtype=torch.float64)
 
@@ -58,7 +59,8 @@ class MpmFiniteDifference:
         scenes = [self.spec.scene_at(v) for v in stencil]
         with PeakMemory(self.device) as memory:
             start = time.perf_counter()
-            runs = simulate(scenes, device=self.device, progress=self.progress, frames=self.frames[-1] + 1)
+            runs = simulate(scenes, device=self.device, progress=self.progress, frames=self.frames[-1] + 1,
+                            compile=self.compile)
             elapsed = time.perf_counter() - start
         losses = np.array([self._loss(run.positions) for run in runs])
         gradient_u = (losses[2::2] - losses[1::2]) / spacing

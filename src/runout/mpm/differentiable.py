@@ -14,12 +14,21 @@ Memory stays bounded (torch.utils.checkpoint, reentrant): the forward keeps only
 (x, v, C, stress, volume: 13 numbers per point) at each output frame and at each relaxation
 substep, and the backward pass recomputes one frame's substeps at a time. So the memory grows
 by about 100 bytes per point per frame instead of by every substep's temporaries.
+
+compile=True runs each frame's substeps (and each relaxation substep) through torch.compile:
+the checkpoint's forward runs a fused no-grad graph, and its recomputation AOTAutograd's fused
+forward and backward, so the thousands of small autograd operations per frame become a few
+C++ kernels. Same results to rounding (the kernels may reorder sums), about 4x faster per
+evaluation on a CPU (small dam: 1.3 s against 6.7 s), the same memory; the first evaluation
+compiles four graphs (no grad / grad, relaxation / frame): 2-3 minutes on a 2-core CPU, a few
+seconds in a later process from torch's on-disk compile cache.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import replace
+from functools import partial
 
 import numpy as np
 import torch
@@ -40,8 +49,9 @@ class DifferentiableMpm:
     M follows scene.material_names; frames are output-frame indices (0 = start), increasing."""
 
     def __init__(self, scene: Scene, frames, device: str | torch.device = "cpu", dtype: torch.dtype = torch.float64,
-                 checkpoint: bool = True):
+                 checkpoint: bool = True, compile: bool = False):
         self.scene = scene
+        self.substeps = compiled_substeps() if compile else substeps  # n substeps of a Points in place
         self.checkpoint = checkpoint  # False: autograd keeps every substep (memory grows with them)
         self.frames = [int(f) for f in frames]
         self.batch = build_batch([scene], torch.device(device), dtype)
@@ -91,11 +101,12 @@ class DifferentiableMpm:
         pts = self.initial_points(phi, mat)
         batch = replace(self.batch, pts=pts)
         if len(pts.x):
-            relax_geostatic(batch, step=_checkpointed_substep if self.checkpoint else substep)
+            relax_geostatic(batch, step=partial(_relaxation_substep, keep_start_only=self.checkpoint,
+                                                advance=self.substeps))
         wanted = set(self.frames)
         out = {0: pts.x} if 0 in wanted else {}
         for frame in range(1, self.frames[-1] + 1):
-            _advance(pts, batch.grid, batch.dt, batch.flip, batch.damping, batch.n_sub, self.checkpoint)
+            _advance(pts, batch.grid, batch.dt, batch.flip, batch.damping, batch.n_sub, self.checkpoint, self.substeps)
             if frame in wanted:
                 out[frame] = pts.x
         return torch.stack([self._all_points(out[f]) for f in self.frames])
@@ -104,22 +115,45 @@ class DifferentiableMpm:
         return self.template.index_put((self.moving_index,), x)
 
 
-def _advance(pts: Points, grid, dt: float, flip: float, damping: float, n: int, keep_start_only: bool = True) -> None:
+def substeps(pts: Points, grid, dt: float, flip, damping: float, n: int, *tensors: torch.Tensor
+             ) -> tuple[torch.Tensor, ...]:
+    """n substeps from the state and strengths `tensors` (_STATE, then _STRENGTHS) with pts's other
+    fields; returns the new state (x, v, C, stress, volume)."""
+    base = pts.mat
+    strengths = dict(zip(_STRENGTHS, tensors[len(_STATE):]))
+    mat = MaterialArrays(lam=base.lam, shear=base.shear, plastic=base.plastic, **strengths)
+    p = replace(pts, mat=mat, **dict(zip(_STATE, tensors[: len(_STATE)])))
+    for _ in range(n):
+        substep(p, grid, dt, flip, damping)
+    return tuple(getattr(p, name) for name in _STATE)
+
+
+_COMPILED = []
+
+
+def compiled_substeps():
+    """`substeps` through torch.compile, made once per process: one graph for the n substeps of
+    a frame (AOTAutograd fuses their forward and backward into a few C++ kernels). Four graphs
+    (no grad / grad, relaxation / frame); shapes static for the first scene, dynamic after."""
+    if not _COMPILED:
+        _COMPILED.append(torch.compile(substeps))
+    return _COMPILED[0]
+
+
+def _advance(pts: Points, grid, dt: float, flip: float, damping: float, n: int, keep_start_only: bool = True,
+             advance=substeps) -> None:
     """n substeps of pts in place, recomputed in the backward pass (only their start is kept).
 
     The reentrant checkpoint runs the forward without building a graph (as fast as the plain
     MPM); the strengths are passed as explicit inputs so that their gradients come back."""
-    base = pts.mat
 
     def run(*tensors):
-        strengths = dict(zip(_STRENGTHS, tensors[len(_STATE):]))
-        mat = MaterialArrays(lam=base.lam, shear=base.shear, plastic=base.plastic, **strengths)
-        p = replace(pts, mat=mat, **dict(zip(_STATE, tensors[: len(_STATE)])))
-        for _ in range(n):
-            substep(p, grid, dt, flip, damping)
-        return tuple(getattr(p, name) for name in _STATE)
+        if advance is not substeps:  # compiled: one requires_grad pattern per grad mode, so no recompiles
+            grad = torch.is_grad_enabled()
+            tensors = tuple(t if grad and t.requires_grad else t.detach().requires_grad_(grad) for t in tensors)
+        return advance(pts, grid, dt, flip, damping, n, *tensors)
 
-    inputs = tuple(getattr(pts, name) for name in _STATE) + tuple(getattr(base, name) for name in _STRENGTHS)
+    inputs = tuple(getattr(pts, name) for name in _STATE) + tuple(getattr(pts.mat, name) for name in _STRENGTHS)
     if keep_start_only and torch.is_grad_enabled() and any(t.requires_grad for t in inputs):
         state = checkpoint(run, *inputs, use_reentrant=True)
     else:
@@ -128,9 +162,10 @@ def _advance(pts: Points, grid, dt: float, flip: float, damping: float, n: int, 
         setattr(pts, name, value)
 
 
-def _checkpointed_substep(pts: Points, grid, dt: float, flip: float = 0.0, damping: float = 0.0) -> None:
-    """relax_geostatic's step, kept only by its start state."""
-    _advance(pts, grid, dt, flip, damping, 1)
+def _relaxation_substep(pts: Points, grid, dt: float, flip: float = 0.0, damping: float = 0.0,
+                        keep_start_only: bool = True, advance=substeps) -> None:
+    """relax_geostatic's step, kept only by its start state (keep_start_only)."""
+    _advance(pts, grid, dt, flip, damping, 1, keep_start_only, advance)
 
 
 def material_values(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
