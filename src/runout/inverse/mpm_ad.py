@@ -26,7 +26,7 @@ class MpmAutodiff:
     """Evaluator: physical values [P] -> Evaluation (loss and its exact gradient).
 
     compile=True runs the MPM's substeps through torch.compile (runout.mpm.differentiable):
-    ~4x faster per evaluation on a CPU once compiled, but the first evaluation compiles four
+    ~6x faster per evaluation on a CPU once compiled, but the first evaluation compiles four
     graphs (2-3 minutes on a 2-core CPU; seconds in later processes, from torch's disk cache)."""
 
     def __init__(self, spec: InverseSpec, observation: Observation, device: str = "cpu", compile: bool = False):

@@ -57,8 +57,8 @@ def invert(
     A run killed part-way resumes when called again with the same arguments (force: start
     afresh). `log` receives one line per evaluation, `warn` each warning (e.g. a value
     outside the model's training range); `progress` shows a bar over each forward run.
-    compile (mpm-ad, mpm-fd): torch.compile the MPM substeps, 2-5x faster per evaluation on a
-    CPU after a first evaluation that compiles (seconds to minutes, docs/benchmarks.md)."""
+    compile (mpm-ad, mpm-fd): torch.compile the MPM substeps, ~6x (mpm-ad) and ~3x (mpm-fd) faster per
+    evaluation on a CPU after a first evaluation that compiles (seconds to minutes, docs/benchmarks.md)."""
     if engine not in ENGINES:
         raise InputError(f"--engine {engine!r} must be one of {', '.join(ENGINES)}.")
     if not 1 <= starts <= MAX_STARTS:

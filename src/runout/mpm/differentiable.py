@@ -18,8 +18,8 @@ by about 100 bytes per point per frame instead of by every substep's temporaries
 compile=True runs each frame's substeps (and each relaxation substep) through torch.compile:
 the checkpoint's forward runs a fused no-grad graph, and its recomputation AOTAutograd's fused
 forward and backward, so the thousands of small autograd operations per frame become a few
-C++ kernels. Same results to rounding (the kernels may reorder sums), about 4x faster per
-evaluation on a CPU (small dam: 1.3 s against 6.7 s), the same memory; the first evaluation
+C++ kernels. Same results to rounding (the kernels may reorder sums), about 6x faster per
+evaluation on a CPU (small dam, P = 3: 0.99 s against 6.28 s, docs/benchmarks.md), the same memory; the first evaluation
 compiles four graphs (no grad / grad, relaxation / frame): 2-3 minutes on a 2-core CPU, a few
 seconds in a later process from torch's on-disk compile cache.
 """
