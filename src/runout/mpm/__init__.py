@@ -19,7 +19,7 @@ from runout.mpm.batch import build_batch, run_batch, substeps_per_frame
 from runout.scene import Scene
 from runout.trajectory import Trajectory
 
-SOLVER_VERSION = "5"  # 5: FLIP share a fixed rate in time (exp(-dt c_p / dx)), relaxation with local damping 0.8; 4: rough (no-slip) base by default, points without contacts keep no affine velocity; 3: consistent cut-off return, APIC, elastic-plastic relaxation, fixed-ground normals, dilute points
+SOLVER_VERSION = "6"  # 6: volumetric rate averaged through the nodes, weighted by the mobilised strength; 5: FLIP share a fixed rate in time (exp(-dt c_p / dx)), relaxation with local damping 0.8; 4: rough (no-slip) base by default, points without contacts keep no affine velocity; 3: consistent cut-off return, APIC, elastic-plastic relaxation, fixed-ground normals, dilute points
 
 __all__ = ["simulate", "substeps_per_frame"]
 

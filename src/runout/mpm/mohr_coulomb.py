@@ -65,7 +65,7 @@ def elastic_trial(stress: torch.Tensor, strain: torch.Tensor, mat: MaterialArray
     )
 
 
-def _radius(d: torch.Tensor, sxy: torch.Tensor) -> torch.Tensor:
+def mohr_radius(d: torch.Tensor, sxy: torch.Tensor) -> torch.Tensor:
     """Mohr-circle radius sqrt(d^2 + sxy^2). Under autograd (runout.mpm.differentiable) an
     isotropic state (radius 0, where sqrt has an infinite slope) gets a zero gradient instead
     of NaN, with the same values (the double-where trick); the default path is untouched."""
@@ -94,7 +94,7 @@ def return_map(stress: torch.Tensor, mat: MaterialArrays) -> torch.Tensor:
     sxx, syy, sxy, szz = stress.unbind(1)
     s = 0.5 * (sxx + syy)
     d = 0.5 * (sxx - syy)
-    t = _radius(d, sxy)
+    t = mohr_radius(d, sxy)
     s1, s3 = s + t, s - t
     sin, cut, lam, g, k = mat.sin_phi, mat.tension, mat.lam, mat.shear, mat.k
     t_a = mat.c_cos - s * sin  # yield radius at this s

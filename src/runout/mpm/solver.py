@@ -17,7 +17,7 @@ import torch
 
 from runout.defaults import FLIP_WAVE
 from runout.mpm.geostatic import GRAVITY
-from runout.mpm.mohr_coulomb import MaterialArrays, update_stress
+from runout.mpm.mohr_coulomb import MaterialArrays, mohr_radius, update_stress
 
 PAD = 2  # grid nodes beyond each wall; quadratic B-splines reach 1.5 cells
 _OFFSETS = [(a, b) for a in range(3) for b in range(3)]
@@ -203,11 +203,53 @@ LOOSE = 1.16  # volume ratio beyond which a point has no contact network: random
 DILUTE = 2.0  # volume ratio beyond which a point is dilute (no contacts, no stress)
 
 
+def mobilised(stress: torch.Tensor, mat: MaterialArrays) -> torch.Tensor:
+    """[P] share of the shear strength a point's stress mobilises, t / (c cos(phi) - s sin(phi)),
+    capped at 1; 1 where the yield radius is zero or negative (at or beyond the apex), 0 for
+    elastic materials. Safe under autograd at isotropic stress (t = 0) and at the apex."""
+    sxx, syy, sxy, _ = stress.unbind(1)
+    s = 0.5 * (sxx + syy)
+    t = mohr_radius(0.5 * (sxx - syy), sxy)
+    t_a = mat.c_cos - s * mat.sin_phi
+    open_ = t_a > 0
+    share = torch.clamp(t / torch.where(open_, t_a, torch.ones_like(t_a)), max=1.0)
+    share = torch.where(open_, share, torch.ones_like(share))
+    return torch.where(mat.plastic, share, torch.zeros_like(share))
+
+
+def nodal_volumetric_rate(pts: Points, m_grid: torch.Tensor, cache) -> torch.Tensor:
+    """[P] the volumetric rate tr(C) averaged through the nodes: each node takes the
+    mass-weighted mean of its points' tr(C) (the p2g weights), each point the weighted mean of
+    its nodes (the g2p weights). 1/s."""
+    ids, w, _ = cache
+    tr = pts.C[:, 0, 0] + pts.C[:, 1, 1]
+    node = torch.zeros_like(m_grid).index_add_(0, ids.reshape(-1), ((pts.mass * tr)[:, None] * w).reshape(-1))
+    node = torch.where(m_grid > 0, node / m_grid.clamp_min(1e-30), torch.zeros_like(node))
+    return (w * node[ids]).sum(1)
+
+
+def velocity_gradient(pts: Points, m_grid: torch.Tensor, cache) -> torch.Tensor:
+    """[P, 2, 2] the velocity gradient the stress and volume updates use: the APIC C with its
+    volumetric part moved towards the nodal average by the mobilised strength w,
+    L = C + w (tr_avg - tr C) / 2 I.
+
+    With psi = 0 the plastic flow is isochoric; asking tr(L) = 0 at every point is more
+    constraints than the grid has velocity modes (volumetric locking), so the flow stiffens and
+    dissipates more the coarser the grid. Averaging through the nodes removes the excess
+    constraints (B-bar-like); weighting by the mobilised strength leaves unloaded, elastic
+    soil (a standing cut's face) its own rate, and nothing switches on and off between
+    substeps (docs/scene-format.md, solver version 6)."""
+    C = pts.C
+    tr = C[:, 0, 0] + C[:, 1, 1]
+    shift = 0.5 * mobilised(pts.stress, pts.mat) * (nodal_volumetric_rate(pts, m_grid, cache) - tr)
+    return C + shift[:, None, None] * torch.eye(2, dtype=C.dtype, device=C.device)
+
+
 def substep(pts: Points, grid: Grid, dt: float, flip: float | str = FLIP_WAVE, damping: float = 0.0) -> None:
     m_grid, p_grid, cache = p2g(pts, grid, dt)
     v_grid, v_before = grid_update(m_grid, p_grid, grid, dt, damping)
     g2p(pts, v_grid, v_before, cache, grid, dt, flip_share(pts, dt, flip))
-    grad_v = pts.C
+    grad_v = velocity_gradient(pts, m_grid, cache)
     pts.stress = update_stress(pts.stress, grad_v, dt, pts.mat)
     j = (1 + dt * grad_v[:, 0, 0]) * (1 + dt * grad_v[:, 1, 1]) - dt * dt * grad_v[:, 0, 1] * grad_v[:, 1, 0]
     pts.volume = pts.volume * j  # det(I + dt L)
