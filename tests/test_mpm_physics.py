@@ -283,7 +283,8 @@ def test_nodal_volumetric_rate_keeps_a_uniform_rate_and_mobilised_share_is_the_s
     """The nodal average is a weighted mean: a uniform tr(C) comes back unchanged (partition of
     unity). The mobilised share is t / (c cos phi - s sin phi): 0.5 at half the strength, 1 at
     yield and beyond the apex, 0 for an elastic material; finite gradients at an isotropic state."""
-    from runout.mpm.solver import mobilised, nodal_volumetric_rate, p2g
+    from runout.mpm.mohr_coulomb import mobilised
+    from runout.mpm.solver import nodal_volumetric_rate, p2g
 
     mats = {"soil": {"friction_angle": 30.0, "cohesion": 10.0}}
     batch = build_batch([make_scene([("soil", [(0, 0), (40, 0), (40, 20), (0, 20)])], mats, width=100.0, frames=2)],

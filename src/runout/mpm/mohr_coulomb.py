@@ -76,6 +76,24 @@ def mohr_radius(d: torch.Tensor, sxy: torch.Tensor) -> torch.Tensor:
     return torch.where(round_, torch.sqrt(torch.where(round_, r2, torch.ones_like(r2))), torch.zeros_like(r2))
 
 
+def yield_radius(s: torch.Tensor, mat: MaterialArrays) -> torch.Tensor:
+    """Mohr-circle radius at yield for in-plane mean stress s: c cos(phi) - s sin(phi), Pa."""
+    return mat.c_cos - s * mat.sin_phi
+
+
+def mobilised(stress: torch.Tensor, mat: MaterialArrays) -> torch.Tensor:
+    """[P] share of the shear strength a point's stress mobilises, t / (c cos(phi) - s sin(phi)),
+    capped at 1; 1 where the yield radius is zero or negative (at or beyond the apex), 0 for
+    elastic materials. Safe under autograd at isotropic stress (t = 0) and at the apex."""
+    sxx, syy, sxy, _ = stress.unbind(1)
+    t = mohr_radius(0.5 * (sxx - syy), sxy)
+    t_a = yield_radius(0.5 * (sxx + syy), mat)
+    open_ = t_a > 0
+    share = torch.clamp(t / torch.where(open_, t_a, torch.ones_like(t_a)), max=1.0)
+    share = torch.where(open_, share, torch.ones_like(share))
+    return torch.where(mat.plastic, share, torch.zeros_like(share))
+
+
 def return_map(stress: torch.Tensor, mat: MaterialArrays) -> torch.Tensor:
     """Project the trial stress onto the Mohr-Coulomb (psi = 0) / tension cut-off surface.
 
@@ -97,7 +115,7 @@ def return_map(stress: torch.Tensor, mat: MaterialArrays) -> torch.Tensor:
     t = mohr_radius(d, sxy)
     s1, s3 = s + t, s - t
     sin, cut, lam, g, k = mat.sin_phi, mat.tension, mat.lam, mat.shear, mat.k
-    t_a = mat.c_cos - s * sin  # yield radius at this s
+    t_a = yield_radius(s, mat)
     f_s = t - t_a
     f_t = s1 - cut
 

@@ -17,7 +17,7 @@ import torch
 
 from runout.defaults import FLIP_WAVE
 from runout.mpm.geostatic import GRAVITY
-from runout.mpm.mohr_coulomb import MaterialArrays, mohr_radius, update_stress
+from runout.mpm.mohr_coulomb import MaterialArrays, mobilised, update_stress
 
 PAD = 2  # grid nodes beyond each wall; quadratic B-splines reach 1.5 cells
 _OFFSETS = [(a, b) for a in range(3) for b in range(3)]
@@ -201,20 +201,6 @@ def flip_share(pts: Points, dt: float, flip: float | str):
 
 LOOSE = 1.16  # volume ratio beyond which a point has no contact network: random close / loose packing 0.64 / 0.55
 DILUTE = 2.0  # volume ratio beyond which a point is dilute (no contacts, no stress)
-
-
-def mobilised(stress: torch.Tensor, mat: MaterialArrays) -> torch.Tensor:
-    """[P] share of the shear strength a point's stress mobilises, t / (c cos(phi) - s sin(phi)),
-    capped at 1; 1 where the yield radius is zero or negative (at or beyond the apex), 0 for
-    elastic materials. Safe under autograd at isotropic stress (t = 0) and at the apex."""
-    sxx, syy, sxy, _ = stress.unbind(1)
-    s = 0.5 * (sxx + syy)
-    t = mohr_radius(0.5 * (sxx - syy), sxy)
-    t_a = mat.c_cos - s * mat.sin_phi
-    open_ = t_a > 0
-    share = torch.clamp(t / torch.where(open_, t_a, torch.ones_like(t_a)), max=1.0)
-    share = torch.where(open_, share, torch.ones_like(share))
-    return torch.where(mat.plastic, share, torch.zeros_like(share))
 
 
 def nodal_volumetric_rate(pts: Points, m_grid: torch.Tensor, cache) -> torch.Tensor:
