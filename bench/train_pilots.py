@@ -40,6 +40,14 @@ PRESETS: dict[str, list[str]] = {
     "ft-stride1": [*W64, "--lr", "1e-4", "--lr-decay-steps", "300000"],
     "ft-stride2": [*W64, "--lr", "1e-4", "--lr-decay-steps", "300000", "--frame-stride", "2"],
     "ft-pushforward2": [*W64, "--lr", "1e-4", "--lr-decay-steps", "300000", "--pushforward", "2"],
+    # the recipe issue (solver-6 data, from scratch, windows at rest included): noise in velocity std
+    **{f"r-noise{n}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n] for n in ("0.02", "0.1", "0.3", "0.6")},
+    **{f"r-noise{n}-tail40": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--static-tail", "40"]
+       for n in ("0.1", "0.3", "0.6")},
+    **{f"r-noise{n}-stride{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--frame-stride", k]
+       for n in ("0.1", "0.3", "0.6") for k in ("2", "4")},
+    **{f"r-noise{n}-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--pushforward", k]
+       for n in ("0.1", "0.3", "0.6") for k in ("1", "2")},
 }
 
 
@@ -70,17 +78,20 @@ def run_pilots(names: list[str], data: Path, out: Path, minutes: float, parallel
 
 
 def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int | None = None) -> list[dict]:
+    """Roll every pilot's last checkpoint out from rest (frame 0 repeated, as users' scenes
+    start) over all frames of the first n_valid validation scenes, and score it against the
+    MPM beside a prediction in which nothing moves (standing still)."""
     import numpy as np
     import torch
 
     from runout.dataset import split_trajectories
     from runout.gns.checkpoint import load_simulator, read_checkpoint
     from runout.gns.rollout import rollout_trajectory
-    from runout.metrics import compare
 
     torch.set_num_threads(threads or os.cpu_count() or 1)
     truths = list(split_trajectories(data, "valid", n_valid))
-    rows = []
+    rows = [{"pilot": "standing still", **_scores([still(t) for t in truths], truths)}]
+    print(json.dumps(rows[-1]), flush=True)
     for name in names:
         path = out / name / "checkpoint.pt"
         if not path.exists():
@@ -90,25 +101,58 @@ def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int
         log = [json.loads(ln) for ln in (out / name / "log.jsonl").read_text().splitlines() if ln]
         wall = max((r.get("wall_s", 0.0) for r in log), default=0.0)
         t0 = time.perf_counter()
-        results = [compare(rollout_trajectory(simulator, t, t.n_frames, stop_speed=None), t) for t in truths]
+        predicted = [rollout_trajectory(simulator, t, t.n_frames, stop_speed=None) for t in truths]
         rows.append({
             "pilot": name, "options": " ".join(PRESETS[name]), "steps": step, "train_wall_s": wall,
             "s_per_step": wall / max(step, 1),
-            "final_loss": float(np.mean([r["loss"] for r in log if "loss" in r][-10:])),
-            "valid_runout_error_mean_abs": float(np.mean([abs(r["runout_error"]) for r in results])),
-            "valid_position_mse_mean_m2": float(np.mean([r["position_mse_mean_m2"] for r in results])),
-            "valid_trajectories": len(results), "rollout_s": time.perf_counter() - t0,
+            "final_loss": float(np.mean([r["loss"] for r in log if "loss" in r][-20:])),
+            **_scores(predicted, truths), "rollout_s": time.perf_counter() - t0,
         })
         print(json.dumps(rows[-1]), flush=True)
     return rows
 
 
+def still(truth):
+    """A prediction in which nothing moves: frame 0 held for every frame."""
+    import dataclasses
+
+    import numpy as np
+
+    frozen = np.repeat(truth.positions[:1], truth.n_frames, axis=0)
+    return dataclasses.replace(truth, positions=frozen, info=dict(truth.info))
+
+
+def _scores(predicted, truths) -> dict:
+    """Means over the scenes: position error (m, every soil point and frame), |front error|
+    relative to the MPM front's travel (sides that travel more than a point spacing, 4 m),
+    |extent runout error| (relative), and the per-scene mean displacement of the last frame."""
+    import numpy as np
+
+    from runout.metrics import compare, final_displacement, front_errors
+
+    fronts, pos, runout, moved, moved_mpm = [], [], [], [], []
+    for p, t in zip(predicted, truths):
+        e = front_errors(p, t)
+        pos.append(e["position_error_mean_m"])
+        for side in ("left", "right"):
+            if e[f"{side}_front_travel_m"] > 4.0:
+                fronts.append(abs(e[f"{side}_front_error_m"]) / e[f"{side}_front_travel_m"])
+        runout.append(abs(compare(p, t)["runout_error"]))
+        moved.append(float(final_displacement(p).mean()))
+        moved_mpm.append(float(final_displacement(t).mean()))
+    return {"position_error_m": float(np.mean(pos)), "front_error_rel": float(np.mean(fronts)) if fronts else float("nan"),
+            "fronts_scored": len(fronts), "runout_error_abs": float(np.mean(runout)),
+            "mean_displacement_m": float(np.mean(moved)), "mean_displacement_mpm_m": float(np.mean(moved_mpm)),
+            "scenes": len(truths)}
+
+
 def table(rows: list[dict]) -> str:
-    lines = ["| pilot | steps | s/step | last loss | valid runout error | valid position MSE (m²) |",
-             "|---|---|---|---|---|---|"]
+    lines = ["| pilot | steps | s/step | last loss | position error (m) | front error / travel | "
+             "extent runout error | mean displacement (MPM) m |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        lines.append(f"| {r['pilot']} | {r['steps']} | {r['s_per_step']:.3f} | {r['final_loss']:.3f} | "
-                     f"{100 * r['valid_runout_error_mean_abs']:.1f} % | {r['valid_position_mse_mean_m2']:.1f} |")
+        steps = f"{r['steps']} | {r['s_per_step']:.3f} | {r['final_loss']:.3f}" if "steps" in r else "— | — | —"
+        lines.append(f"| {r['pilot']} | {steps} | {r['position_error_m']:.2f} | {100 * r['front_error_rel']:.1f} % | "
+                     f"{100 * r['runout_error_abs']:.1f} % | {r['mean_displacement_m']:.1f} ({r['mean_displacement_mpm_m']:.1f}) |")
     return "\n".join(lines)
 
 
@@ -120,14 +164,15 @@ def main() -> None:
                     choices=sorted(PRESETS))
     ap.add_argument("--minutes", type=float, default=10.0, help="wall time of each pilot")
     ap.add_argument("--parallel", type=int, default=2, help="pilots at once (threads split between them)")
-    ap.add_argument("--valid", type=int, default=6, help="validation trajectories rolled out per pilot")
+    ap.add_argument("--valid", type=int, default=16, help="validation trajectories rolled out per pilot")
     ap.add_argument("--threads", type=int, default=None, help="threads per pilot (default: cores / --parallel)")
+    ap.add_argument("--eval-threads", type=int, default=None, help="threads of the evaluation rollouts (default: all cores)")
     ap.add_argument("--init", type=Path, default=None, help="start every pilot from this checkpoint (the ft-* presets)")
     ap.add_argument("--evaluate-only", action="store_true")
     args = ap.parse_args()
     if not args.evaluate_only:
         run_pilots(args.pilots, args.data, args.out, args.minutes, args.parallel, args.threads, args.init)
-    rows = evaluate(args.pilots, args.data, args.out, args.valid, args.threads)
+    rows = evaluate(args.pilots, args.data, args.out, args.valid, args.eval_threads)
     (args.out / "pilots.json").write_text(json.dumps(rows, indent=2))
     print(table(rows))
 

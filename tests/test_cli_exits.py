@@ -76,7 +76,8 @@ def test_an_unknown_option_is_exit_2(capsys):
 
 @pytest.mark.parametrize("option, value, words", [
     ("--latent", "0", "--latent = 0 is outside the allowed range [1, 1024]"),
-    ("--noise-std", "-1", "--noise-std = -1 is outside the allowed range [0, 10] m/s"),
+    ("--noise", "-1", "--noise = -1 is outside the allowed range [0, 10] velocity std"),
+    ("--static-tail", "-3", "--static-tail = -3 is outside the allowed range [0, 1e+06] frames"),
     ("--message-passing-steps", "500", "--message-passing-steps = 500 is outside the allowed range [1, 50]"),
     ("--lr", "0", "--lr = 0 is outside the allowed range (0, 1]"),
 ])

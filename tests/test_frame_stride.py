@@ -33,7 +33,7 @@ def stride_two(tmp_path_factory):
     """(data folder, run folder) of a stride-2 run of 150 steps on a tiny synthetic dataset."""
     folder = tmp_path_factory.mktemp("stride")
     data = write_dataset(folder / "data")
-    train(config(data, folder / "run", steps=150, lr_init=3e-3, noise_velocity_std=0.0, frame_stride=2))
+    train(config(data, folder / "run", steps=150, lr_init=3e-3, noise=0.0, frame_stride=2))
     return data, folder / "run"
 
 
@@ -43,12 +43,25 @@ def truth(frames: int = 20):
 
 def test_windows_at_stride_two_start_at_every_frame(tmp_path):
     data = write_dataset(tmp_path / "data", frames=20, n_train=2)
-    sims = Simulations(data / "train.npz", torch.device("cpu")).with_stride(2)
+    sims = Simulations(data / "train.npz", torch.device("cpu"), rest_windows=False).with_stride(2)
     assert sims.n_windows == 2 * (20 - 6 * 2)  # starts 0..7 of each simulation
     positions = torch.from_numpy(read_simulations(data / "train.npz")[1][0])
     window, future, _, _ = sims._window(8 + 3)  # the second simulation, start frame 3
     torch.testing.assert_close(window, positions[3:14:2].transpose(0, 1))  # frames 3, 5, ..., 13
     torch.testing.assert_close(future[:, -1], positions[15])
+
+
+def test_windows_at_rest_start_before_frame_zero_at_stride_two(tmp_path):
+    data = write_dataset(tmp_path / "data", frames=20, n_train=2)
+    sims = Simulations(data / "train.npz", torch.device("cpu")).with_stride(2)
+    assert sims.n_windows == 2 * (20 - 6 * 2 + 5 * 2)  # starts -10..7 of each simulation
+    positions = torch.from_numpy(read_simulations(data / "train.npz")[1][0])
+    window, future, _, _ = sims._window(18)  # the second simulation's first window: the scene at rest
+    torch.testing.assert_close(window, positions[[0] * 6].transpose(0, 1))
+    torch.testing.assert_close(future[:, -1], positions[2])
+    window, future, _, _ = sims._window(18 + 7)  # start frame -3: frames 0, 0, 1, 3, 5, 7
+    torch.testing.assert_close(window, positions[[0, 0, 1, 3, 5, 7]].transpose(0, 1))
+    torch.testing.assert_close(future[:, -1], positions[9])
 
 
 def test_stride_two_statistics_are_those_of_two_frame_differences(tmp_path):
@@ -75,23 +88,27 @@ def test_a_stride_two_run_learns_and_records_its_stride_and_statistics(stride_tw
     measured = Simulations(data / "train.npz", torch.device("cpu")).with_stride(2).moments()
     assert ckpt["stats"]["vel_std"] == pytest.approx(measured["vel_std"])
     assert ckpt["stats"]["acc_std"] == pytest.approx(measured["acc_std"])
-    noisy = train(config(data, tmp_path / "noisy", steps=1, frame_stride=2))
-    assert noisy.stats.noise_std == pytest.approx(0.067 * FRAME_DT * 2)  # m per step of two frames
+    noisy = train(config(data, tmp_path / "noisy", steps=1, frame_stride=2, noise=0.3))
+    assert noisy.stats.noise_std == pytest.approx(0.3 * np.mean(measured["vel_std"]))  # m per step of two frames
 
 
 def test_a_stride_two_model_rolls_out_one_frame_every_two_over_the_asked_time(stride_two):
     simulator = load_simulator(stride_two[1] / "checkpoint.pt")
     start = truth(20)
-    predicted = rollout_trajectory(simulator, start, 20, stop_speed=None)
+    predicted = rollout_trajectory(simulator, start, 20, stop_speed=None, from_rest=False)
     assert predicted.frame_dt == pytest.approx(2 * FRAME_DT)
     assert predicted.n_frames == 11 and (predicted.n_frames - 1) * predicted.frame_dt >= 19 * FRAME_DT
     np.testing.assert_array_equal(predicted.positions[:6], start.positions[0:12:2])  # the window: frames 0, 2, ..., 10
+    from_rest = rollout_trajectory(simulator, start, 20, stop_speed=None)  # frame 0 held before the start
+    assert from_rest.n_frames == 11 and from_rest.frame_dt == pytest.approx(2 * FRAME_DT)
+    np.testing.assert_array_equal(from_rest.positions[0], start.positions[0])
+    assert from_rest.info["start"] == "rest"
     scene = scene_from_dict({
         "domain": {"width": 60, "height": 30},
         "materials": {"sand": {"friction_angle": 30}},
         "regions": [{"material": "sand", "polygon": [[20, 0], [36, 0], [36, 10], [20, 10]]}],
     })
-    at_rest = rollout_trajectory(simulator, scene_at_rest(scene, simulator.window_frames), 480, stop_speed=None)
+    at_rest = rollout_trajectory(simulator, scene_at_rest(scene), 480, stop_speed=None)
     assert at_rest.n_frames == 241 and at_rest.frame_dt * (at_rest.n_frames - 1) == pytest.approx(18.0)
 
 
@@ -164,8 +181,11 @@ def test_a_checkpoint_without_a_stride_loads_as_stride_one(tmp_path):
 
 def test_a_stride_longer_than_the_data_is_one_sentence(tmp_path):
     data = write_dataset(tmp_path / "data", frames=20)
-    with pytest.raises(InputError, match="choose a smaller --frame-stride"):
-        train(config(data, tmp_path / "run", steps=1, frame_stride=4))  # a window spans 24 frames
+    with pytest.raises(InputError, match="choose a smaller --frame-stride"):  # a window spans 24 frames
+        train(config(data, tmp_path / "run", steps=1, frame_stride=4, rest_windows=False))
+    short = write_dataset(tmp_path / "short", frames=16)
+    with pytest.raises(InputError, match="choose a smaller --frame-stride"):  # from rest: no frame 16 to aim at
+        train(config(short, tmp_path / "run", steps=1, frame_stride=16))
 
 
 @pytest.mark.parametrize("stride", ["0", "17"])

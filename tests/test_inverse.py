@@ -32,7 +32,7 @@ from runout.scene import fill_points, save_scene, scene_from_dict
 from runout.trajectory import save_trajectory, trajectory_for_scene
 
 REPO = Path(__file__).resolve().parents[1]
-STEPS = 10  # rollout steps of the tiny problems
+STEPS = 15  # rollout steps of the tiny problems: frames 0 (at rest) to 15
 TRUE = {"left": {"friction_angle": 30.0, "cohesion": 20.0}, "right": {"friction_angle": 20.0, "cohesion": 40.0}}
 
 TOY_SCENE = {
@@ -75,7 +75,7 @@ def write_target(folder: Path, simulator: Simulator, steps: int = STEPS) -> Path
             simulator, torch.tensor(points.position, dtype=torch.float32)[None].expand(6, -1, -1),
             torch.as_tensor(points.particle_type), table[torch.as_tensor(points.material_id)], steps,
             [[0.0, 60.0], [0.0, 40.0]],
-        )
+        )[5:]  # from rest: the window's six copies of frame 0 are one frame 0
     traj = trajectory_for_scene(true_scene, positions.numpy(), points.particle_type, points.material_id)
     return save_trajectory(traj, folder / "target").parent
 
@@ -131,7 +131,7 @@ BAD_SPECS = {
     "fixed material": ('[parameters.ground]\nc = { lower = 1.0, upper = 2.0 }', "", "no moving"),
     "phi beyond 60": ('[parameters.left]\nphi = { lower = 5.0, upper = 70.0 }', "", "allowed range"),
     "unknown key": ('[parameters.left]\nc = { lower = 1.0, upper = 2.0, start = 1.5 }', "", "unknown key"),
-    "frames before the rollout": ('[parameters.left]\nc = { lower = 1.0, upper = 80.0 }', "frames = [3]", "given initial"),
+    "frames before the rollout": ('[parameters.left]\nc = { lower = 1.0, upper = 80.0 }', "frames = [0]", "the scene at rest"),
 }
 
 
@@ -147,7 +147,7 @@ def test_bad_spec_raises_one_sentence(toy, tmp_path, case):
 
 @pytest.mark.parametrize("frames, rollout_table, phrase", [
     ("[10, 40]", "", "beyond the target trajectory's last frame 15"),
-    ("[10, 14]", "[rollout]\nsteps = 8", "beyond the rollout, whose last frame is 13"),
+    ("[10, 14]", "[rollout]\nsteps = 12", "beyond the rollout, whose last frame is 12"),
 ])
 def test_frames_beyond_the_rollout_are_refused(toy, frames, rollout_table, phrase):
     parameters = "[parameters.left]\nc = { lower = 1.0, upper = 80.0 }\n" + rollout_table
@@ -192,13 +192,13 @@ def test_observed_positions_file_and_front_weighting(toy, tmp_path):
     np.save(tmp_path / "observed.npy", final)
     spec_path = tmp_path / "spec.toml"
     spec_path.write_text(
-        'scene = "toy.toml"\n[target]\npositions = "observed.npy"\n[rollout]\nsteps = 10\n'
+        'scene = "toy.toml"\n[target]\npositions = "observed.npy"\n[rollout]\nsteps = 15\n'
         '[loss]\nweighting = "displacement"\nfront_weight = 4.0\n'
         '[parameters.left]\nc = { lower = 1.0, upper = 80.0 }\n'
     )
     spec = load_inverse_spec(spec_path)
     observation = load_observation(spec)
-    assert observation.frames == (15,) and observation.steps == 10
+    assert observation.frames == (15,) and observation.steps == 15
     weights = observation.weights(spec.loss)
     moved = np.linalg.norm(final - observation.initial, axis=1)
     soil = observation.particle_type != 3

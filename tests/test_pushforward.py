@@ -60,7 +60,7 @@ def test_the_unrolled_steps_are_uniform_and_depend_on_seed_and_step_only():
 @pytest.mark.parametrize("stride", [1, 2])
 def test_windows_for_two_pushforward_steps_leave_room_for_the_true_frames(tmp_path, stride):
     data = write_dataset(tmp_path / "data", frames=20, n_train=2)
-    sims = Simulations(data / "train.npz", torch.device("cpu")).with_stride(stride)
+    sims = Simulations(data / "train.npz", torch.device("cpu"), rest_windows=False).with_stride(stride)
     starts = 20 - 8 * stride  # a window and its target 2 steps on span (6 + 2) x stride + 1 frames
     assert sims.n_windows_for(2) == 2 * starts and sims.n_windows == 2 * (20 - 6 * stride)
     positions = torch.from_numpy(read_simulations(data / "train.npz")[1][0])
@@ -149,8 +149,8 @@ def test_two_gloo_processes_with_pushforward_keep_identical_parameters(tmp_path)
 @pytest.mark.parametrize("stride", [1, 2])
 def test_loss_falls_with_two_pushforward_steps(tmp_path, stride):
     data = write_dataset(tmp_path / "data")
-    model = train(config(data, tmp_path / "run", steps=150, lr_init=3e-3, noise_velocity_std=0.0,
-                         pushforward=2, frame_stride=stride))
+    model = train(config(data, tmp_path / "run", steps=150, lr_init=3e-3, noise=0.0,
+                         pushforward=2, frame_stride=stride, rest_windows=False))
     assert model.frame_stride == stride
     curve = losses(tmp_path / "run")
     assert np.mean(curve[-20:]) < 0.3 * np.mean(curve[:20])
@@ -158,9 +158,11 @@ def test_loss_falls_with_two_pushforward_steps(tmp_path, stride):
 
 def test_data_too_short_for_the_pushforward_steps_is_one_sentence(tmp_path):
     data = write_dataset(tmp_path / "data", frames=20)
-    train(config(data, tmp_path / "fits", steps=1, frame_stride=2, pushforward=3))  # spans (6 + 3) x 2 + 1 = 19 frames
+    train(config(data, tmp_path / "fits", steps=1, frame_stride=2, pushforward=3, rest_windows=False))  # spans (6 + 3) x 2 + 1 = 19 frames
     with pytest.raises(InputError, match=r"frame stride 2 and 4 pushforward steps spans; choose a smaller --frame-stride or --pushforward\.$"):
-        train(config(data, tmp_path / "long", steps=1, frame_stride=2, pushforward=4))
+        train(config(data, tmp_path / "long", steps=1, frame_stride=2, pushforward=4, rest_windows=False))
+    with pytest.raises(InputError, match=r"from rest at frame stride 4 and 4 pushforward steps spans"):  # frame 20 is missing
+        train(config(data, tmp_path / "rest", steps=1, frame_stride=4, pushforward=4))
 
 
 def test_the_library_refuses_a_pushforward_outside_its_range(tmp_path):

@@ -3,8 +3,8 @@ against each other and drawn side by side.
 
 Both engines get the scene filled at the model's point spacing (at_model_spacing). The MPM
 runs through the cache (runout.mpm.cache: a scene run before is read back, with the wall
-time of the run that made it); the GNS starts from rest, 6 identical frames of the filled
-points as `runout rollout SCENE` does, and runs every frame the MPM has (no early stop).
+time of the run that made it); the GNS starts from rest, its window the filled points
+held (runout.gns.rollout.rollout_trajectory) as `runout rollout SCENE` does, and runs every frame the MPM has (no early stop).
 
 metrics.json (lengths in m, read at the final frame):
 
@@ -64,7 +64,7 @@ def run_compare(
     simulator = load_simulator(model, device)
     scene = at_model_spacing(load_scene(scene_path), simulator, str(scene_path), log)
     scene = _with_frames(scene, frames, simulator.window_frames, scene_path)
-    start = scene_at_rest(scene, simulator.window_frames)
+    start = scene_at_rest(scene)
     if not start.soil.any():
         raise InputError(f"{scene_path}: every region is fixed, so there is no soil whose runout could be compared.")
     for line in range_warnings(simulator, start, str(scene_path)):

@@ -58,7 +58,7 @@ def run_demo(out: Path, model: Path, examples: Path, quick: bool = False, force:
 def _forward(simulator, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, Path]:
     """GNS runout of a scene from rest: animation.gif and final.png."""
     scene = at_model_spacing(load_scene(scene_path), simulator, scene_path.name, log)
-    start = scene_at_rest(scene, simulator.window_frames)
+    start = scene_at_rest(scene)
     frames = QUICK_FRAMES if quick else FORWARD_FRAMES
     t0 = time.perf_counter()
     traj = rollout_trajectory(simulator, start, frames, stop_speed=0.05)

@@ -171,3 +171,17 @@ def velocities(traj: Trajectory, frame: int) -> np.ndarray:
     """[N, 2] velocity (m/s) of every point over the frame interval ending at `frame` (>= 1)."""
     step = traj.positions[frame].astype(float) - traj.positions[frame - 1]
     return step / traj.frame_dt
+
+
+def front_errors(predicted: Trajectory, truth: Trajectory) -> dict:
+    """The two fronts of the soil (leftmost and rightmost x) at the last time both
+    trajectories share, against the truth's: per side the error (m) and the truth's travel
+    from its first frame (m), and the mean |position error| over every soil point and shared
+    frame (m). Standing still scores each front's error as its whole travel."""
+    predicted, truth = at_common_times(predicted, truth)
+    out = {"position_error_mean_m": float(displacement_error(predicted, truth).mean())}
+    for side, pick in (("left", np.min), ("right", np.max)):
+        p, t, t0 = (float(pick(tr.positions[f, tr.soil, 0])) for tr, f in ((predicted, -1), (truth, -1), (truth, 0)))
+        out[f"{side}_front_error_m"] = p - t
+        out[f"{side}_front_travel_m"] = abs(t - t0)
+    return out

@@ -1,8 +1,10 @@
 """One GNS training loop for CPU, one GPU and many GPUs (torchrun + DistributedDataParallel).
 
 Each step draws `batch_size` windows per process (at the frame stride: positions K frames
-apart), perturbs their input positions with random-walk noise (velocity std 0.067 m/s =
-0.067 x 0.0375 x K = 2.5e-3 K m per step), corrects the target acceleration, and minimises
+apart; windows of a scene at rest included, runout.gns.samples), perturbs their input
+positions with random-walk noise whose velocity std is `noise` times the data's velocity std
+(the mean of its x and y std of K-frame differences, m per step), corrects the target
+acceleration, and minimises
 the squared error of the normalised acceleration over the non-kinematic points with Adam and
 the paper's learning rate lr(i) = (1e-4 - 1e-6) 0.1^(i / 5e6) + 1e-6. With pushforward N,
 each step first draws n uniformly from 0..N, rolls the model out n steps from the true
@@ -59,7 +61,9 @@ class TrainConfig:
     lr_init: float = 1e-4
     lr_final: float = 1e-6
     lr_decay_steps: float = 5e6
-    noise_velocity_std: float = 0.067  # m/s, converted to m/frame with the dataset's dt
+    noise: float = 0.3  # velocity noise std as a fraction of the data's velocity std (m per step / m per step)
+    rest_windows: bool = True  # also train on windows that start before frame 0 (a scene at rest)
+    static_tail: int | None = None  # frames kept after a simulation's flow stops (None: all)
     seed: int = 0
     device: str = "auto"  # auto, cpu, cuda, cuda:1, ...
     resume: bool = False
@@ -125,7 +129,8 @@ def _start_processes(device: str) -> Context:
 
 def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
     meta = read_metadata(cfg.data)
-    data = Simulations(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"))
+    data = Simulations(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"),
+                       rest_windows=cfg.rest_windows, static_tail=cfg.static_tail, frame_dt=float(meta.get("dt", FRAME_DT)))
     simulator, state, cfg = _build(cfg, meta, data)
     cfg = _native_bf16(cfg, ctx)
     data = data.with_stride(simulator.frame_stride)
@@ -292,7 +297,7 @@ def _build(cfg: TrainConfig, meta: dict, data: Simulations):
         base = read_checkpoint(cfg.init)
         simulator = simulator_from_checkpoint(base, cfg.init)
         if cfg.frame_stride not in (None, simulator.frame_stride):
-            _restride(simulator, cfg.frame_stride, meta, data, cfg.noise_velocity_std)
+            _restride(simulator, cfg.frame_stride, meta, data, cfg.noise)
         wanted = data.schema(simulator.schema)
         if wanted.material_features != simulator.schema.material_features:
             widen_material_features(simulator, wanted.material_features, cfg.init)
@@ -300,27 +305,33 @@ def _build(cfg: TrainConfig, meta: dict, data: Simulations):
         offset = int(base.get("step", 0)) + base.get("train", {}).get("lr_step_offset", 0)
         return simulator, None, replace(cfg, lr_step_offset=offset, frame_stride=simulator.frame_stride)
     stride = cfg.frame_stride or 1
-    stats = _stride_statistics(meta, data, stride, cfg.noise_velocity_std)
+    stats = _stride_statistics(meta, data, stride, cfg.noise)
     schema = data.schema(FeatureSchema(frame_stride=stride))
     torch.manual_seed(cfg.seed)
     radius = cfg.radius if cfg.radius is not None else float(meta["default_connectivity_radius"])
     return Simulator(schema, stats, radius, cfg.network), None, replace(cfg, frame_stride=stride)
 
 
-def _restride(simulator: Simulator, stride: int, meta: dict, data: Simulations, noise_velocity_std: float) -> None:
+def _restride(simulator: Simulator, stride: int, meta: dict, data: Simulations, noise: float) -> None:
     """Start a model of another frame stride from `simulator`'s weights (--init with
     --frame-stride K): the schema records K and the normalisation becomes that of the data's
     K-frame differences, with the noise scaled to a K-frame step. The network sees inputs and
     targets normalised as before (velocities and accelerations in units of their own spread),
     so its weights are a warm start for the longer step, not a model of it."""
     simulator.schema = replace(simulator.schema, frame_stride=stride)
-    simulator.use_statistics(_stride_statistics(meta, data, stride, noise_velocity_std))
+    simulator.use_statistics(_stride_statistics(meta, data, stride, noise))
 
 
-def _stride_statistics(meta: dict, data: Simulations, stride: int, noise_velocity_std: float) -> Normalisation:
-    """Normalisation at `stride` frames per step, the noise converted from m/s to m per step."""
-    noise = noise_velocity_std * float(meta.get("dt", FRAME_DT)) * stride
-    return Normalisation.from_metadata(_statistics(meta, data, stride), noise)
+def _stride_statistics(meta: dict, data: Simulations, stride: int, noise: float) -> Normalisation:
+    """Normalisation at `stride` frames per step, with velocity noise of `noise` times the
+    mean of the x and y velocity std (m per step)."""
+    stats = _statistics(meta, data, stride)
+    return Normalisation.from_metadata(stats, noise * noise_scale(stats))
+
+
+def noise_scale(stats: dict) -> float:
+    """The velocity std that --noise is a fraction of: the mean of the x and y std (m per step)."""
+    return float(sum(stats["vel_std"]) / len(stats["vel_std"]))
 
 
 def _check_whole(option: str, value: int | None, lo: int, hi: int) -> None:
@@ -345,7 +356,7 @@ def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: f
 
 
 def _validate(simulator: Simulator, cfg: TrainConfig, log: "RunLog", step: int, best: float) -> float:
-    """Roll out the first validation trajectories; keep best.pt by mean position MSE."""
+    """Roll out the first validation trajectories from rest; keep best.pt by mean position MSE."""
     path = Path(cfg.data) / "valid.npz"
     if not path.is_file():
         return best
@@ -353,7 +364,7 @@ def _validate(simulator: Simulator, cfg: TrainConfig, log: "RunLog", step: int, 
     simulator.eval()
     for truth in split_trajectories(cfg.data, "valid", cfg.valid_trajectories):
         frames = cfg.valid_frames or truth.n_frames
-        predicted = rollout_trajectory(simulator, truth, min(frames, truth.n_frames), stop_speed=None)
+        predicted = rollout_trajectory(simulator, truth, min(frames, truth.n_frames), stop_speed=None)  # from rest
         results.append(compare(predicted, truth))
     simulator.train()
     mse = sum(r["position_mse_mean_m2"] for r in results) / len(results)

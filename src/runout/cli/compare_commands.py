@@ -16,7 +16,7 @@ def compare(
     scene: Path = typer.Argument(..., help="Scene file (TOML or JSON); both engines fill it at the model's point spacing."),
     model: Path = typer.Option(..., "--model", help="GNS checkpoint (.pt)."),
     out: Path = typer.Option(..., "--out", help="Output folder: metrics.json, final.png, the animation and gns/."),
-    frames: int = typer.Option(None, "--frames", help="Frames of both runs, the first 6 included (default: the scene's); a GNS of frame stride K writes one every K."),
+    frames: int = typer.Option(None, "--frames", help="Frames of both runs, frame 0 included (default: the scene's); a GNS of frame stride K writes one every K."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda, for both the MPM and the GNS."),
     cache: Path = typer.Option(DEFAULT_CACHE, "--cache", help="Folder of cached MPM runs, keyed by a hash of the scene's TOML."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress bars."),

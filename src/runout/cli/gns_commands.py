@@ -14,7 +14,8 @@ from runout.errors import InputError
 
 MAX_ROLLOUT_FRAMES = 1_000_000  # as many as a scene may ask the MPM for
 MAX_STOP_SPEED = 100.0  # m/s
-MAX_NOISE_STD = 10.0  # m/s, training noise on velocities (paper: 0.067 m/s)
+MAX_NOISE = 10.0  # training noise, in velocity std of the data
+MAX_STATIC_TAIL = 1_000_000  # frames
 
 
 @app.command()
@@ -32,7 +33,9 @@ def train(
     radius: float = typer.Option(None, "--radius", help="Connectivity radius in m (default: the dataset's, 2.3 point spacings); new runs only."),
     frame_stride: int = typer.Option(None, "--frame-stride", help="Dataset frames per GNS step, 1-16 (default 1; --resume keeps the checkpoint's, --init keeps it unless this asks for another)."),
     pushforward: int = typer.Option(0, "--pushforward", help="Pushforward training, N = 0-10: each step rolls the model out n steps without gradient, n uniform in 0..N per step, and trains on the window it made (0: one-step training)."),
-    noise_std: float = typer.Option(0.067, "--noise-std", help="Velocity noise std in m/s (converted to m per frame with the dataset's dt)."),
+    noise: float = typer.Option(0.3, "--noise", help="Velocity noise std of the inputs, as a fraction of the data's velocity std (mean of x and y, m per step); docs/training.md gives the pilots behind the default."),
+    rest_windows: bool = typer.Option(True, "--rest-windows/--no-rest-windows", help="Also train on windows that start before frame 0 (the scene at rest, where every rollout starts)."),
+    static_tail: int = typer.Option(None, "--static-tail", help="Train only up to this many frames after a simulation's flow stops (soil slower than 0.05 m/s); default: every frame."),
     latent: int = typer.Option(128, "--latent", help="Latent size of nodes and edges."),
     hidden: int = typer.Option(128, "--hidden", help="Units of each hidden MLP layer."),
     message_passing: int = typer.Option(10, "--message-passing-steps", help="Processor steps (unshared weights)."),
@@ -62,7 +65,8 @@ def train(
         ("--message-passing-steps", message_passing, *NETWORK_LIMITS["message_passing_steps"]),
     ):
         check_range(name, value, lo, hi)
-    check_range("--noise-std", noise_std, 0.0, MAX_NOISE_STD, " m/s")
+    check_range("--noise", noise, 0.0, MAX_NOISE, " velocity std")
+    check_range("--static-tail", static_tail, 0, MAX_STATIC_TAIL, " frames")
     check_range("--lr-decay-steps", lr_decay_steps, 1.0, 1e12)
     check_range("--max-hours", max_hours, 0.0, 1000.0, " h")
     check_range("--radius", radius, 0.1, 1000.0, " m")
@@ -74,7 +78,8 @@ def train(
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun only the writing process prepares it
         claim(folder)
     cfg = TrainConfig(
-        data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise_velocity_std=noise_std,
+        data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise=noise,
+        rest_windows=rest_windows, static_tail=static_tail,
         seed=seed, device=device, resume=resume, init=init,
         network=NetworkConfig(latent=latent, hidden=hidden, message_passing_steps=message_passing),
         save_every=save_every, log_every=log_every, valid_every=valid_every,
@@ -90,16 +95,17 @@ def rollout(
     model: Path = typer.Option(..., "--model", help="GNS checkpoint (.pt)."),
     source: Path = typer.Argument(..., help="SCENE.toml/.json (filled at the model's point spacing, starts at rest), a trajectory folder from `runout mpm`, or a dataset folder."),
     out: Path = typer.Option(..., "--out", help="Output folder: trajectory.npz, metadata.json, metrics.json, pictures, animation."),
-    frames: int = typer.Option(0, "--frames", help="Frames (of the data's dt) to cover, the first 6 included (0: the scene's or ground truth's count); a model of frame stride K writes one every K."),
+    frames: int = typer.Option(0, "--frames", help="Frames (of the data's dt) to cover, frame 0 included (0: the scene's or ground truth's count); a model of frame stride K writes one every K."),
     stop_speed: float = typer.Option(0.05, "--stop-speed", help="Stop once every soil point moves slower than this (m/s); 0: never stop early."),
     split: str = typer.Option("test", "--split", help="For a dataset folder: which split file."),
     index: int = typer.Option(0, "--index", help="For a dataset folder: which simulation of the split."),
     device: str = typer.Option("cpu", "--device", help="cpu, cuda or cuda:K."),
+    from_frames: bool = typer.Option(False, "--from-frames", help="Start a trajectory or dataset from its first frames (the public GNS's start) instead of from rest, its frame 0 held."),
     animation: bool = typer.Option(True, "--animation/--no-animation", help="Write an animation (beside the MPM when there is one)."),
     vtk: bool = typer.Option(False, "--vtk", help="Also write ParaView files: vtk/frame_*.vtu and vtk/trajectory.pvd."),
     force: bool = typer.Option(False, "--force", help="Replace another command's results in --out (removing what this run does not rewrite)."),
 ) -> None:
-    """Roll the GNS out from 6 frames until FRAMES or until the flow stops."""
+    """Roll the GNS out from rest (the first frame held) until FRAMES or until the flow stops."""
     from runout.gns.checkpoint import load_simulator
     from runout.gns.rollout import rollout_trajectory
     from runout.gns.run import ROLLOUT_FILES, initial_state, write_rollout_outputs
@@ -116,13 +122,17 @@ def rollout(
     for line in warnings:
         typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW)
     n_frames = frames or (truth.n_frames if truth is not None else initial.info.get("frames", 480))
-    if n_frames <= simulator.window_frames:
-        raise InputError(f"--frames = {n_frames} must exceed the {simulator.window_frames} initial frames.")
+    given = simulator.window_frames if from_frames else 1
+    if n_frames <= given:
+        raise InputError(f"--frames = {n_frames} must exceed the {given} initial frame{'s' if given > 1 else ''}.")
+    if from_frames and source.is_file():
+        raise InputError(f"--from-frames: {source} is a scene, which starts at rest; give a trajectory or dataset folder.")
     check_rollout_memory(initial.n_points, n_frames, device)
     for line in range_warnings(simulator, initial):
         typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW)
     t0 = time.perf_counter()
-    predicted = rollout_trajectory(simulator, initial, n_frames, stop_speed or None, progress=True)  # RunFailed: exit 1
+    predicted = rollout_trajectory(simulator, initial, n_frames, stop_speed or None, progress=True,
+                                   from_rest=not from_frames)  # RunFailed: exit 1
     predicted.info["wall_s"] = round(time.perf_counter() - t0, 3)
     claim(folder)
     metrics = write_rollout_outputs(predicted, truth, out, simulator.schema.material_width, animation)

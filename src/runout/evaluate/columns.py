@@ -5,7 +5,7 @@ half the point spacing, i.e. the edge of the material the points stand for) of t
 against the left wall at the first and the last frame (m), L^n = (L_f - L_0) / L_0, and the
 error is |L^n_GNS - L^n_MPM| / L^n_MPM x 100 (%). Per aspect ratio: mean error, its
 coefficient of variation and R² of the GNS against the MPM (1:1 line). The GNS starts from
-the MPM's first 6 frames, as the public GNS evaluation does; both run at the model's point
+rest (the MPM's frame 0 held), as a user's scene does; both run at the model's point
 spacing.
 
 Writes OUT/columns/: cases.csv, summary.json, runout_1to1.png, error_heatmaps.png,

@@ -6,7 +6,7 @@ A subset is the first N simulations of DATA/train.npz (with the full set's metad
 every subset shares its normalisation). One epoch is one pass over every training window:
 sum over the subset's simulations of (frames - 6) windows, divided by the batch size and
 rounded up. The rollout error of a held-out simulation is its position MSE (m²) averaged
-over every frame of a rollout from its first 6 frames.
+over every frame of a rollout from rest (its frame 0 held).
 
 Writes OUT/sensitivity/: data_N/ (subsets), steps_N/ and epochs_N/ (training runs; a rerun
 resumes or reuses them), rollouts.csv, summary.json, rollout_mse.png and loss_history.png.

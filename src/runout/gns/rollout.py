@@ -20,7 +20,6 @@ from torch.utils.checkpoint import checkpoint as recompute_in_backward
 from tqdm.auto import tqdm
 
 from runout.errors import InputError, RunFailed
-from runout.gns.schema import HISTORY
 from runout.gns.simulator import Case, Simulator
 from runout.scene import Scene, fill_points
 from runout.trajectory import Trajectory, trajectory_for_scene
@@ -97,38 +96,47 @@ def rollout_trajectory(
     n_frames: int,
     stop_speed: float | None = 0.05,
     progress: bool = False,
+    from_rest: bool = True,
 ) -> Trajectory:
-    """GNS trajectory over n_frames frames of `initial` (its frame_dt; the window included),
-    starting from `initial`'s frames 0, K, ..., (history - 1) K for a model of frame stride K:
-    ceil((n_frames - 1) / K) + 1 frames K x initial.frame_dt apart, the last at or beyond
-    frame n_frames - 1; stop_speed in m/s (None: run all frames)."""
+    """GNS trajectory over n_frames frames of `initial` (its frame_dt, frame 0 included):
+    ceil((n_frames - 1) / K) + 1 frames K x initial.frame_dt apart for a model of frame stride
+    K, the last at or beyond frame n_frames - 1; stop_speed in m/s (None: run all frames).
+
+    from_rest (the default, and how every scene starts): the window is `initial`'s frame 0
+    repeated, the points at rest, and the rollout's frame 0 is that frame. Otherwise the window
+    is `initial`'s frames 0, K, ..., (history - 1) K (the public GNS's start from simulated
+    frames), and they are the rollout's first frames."""
     history, stride = simulator.schema.history, simulator.frame_stride
     start = initial.every(stride)
-    if start.n_frames < history:
+    if not from_rest and start.n_frames < history:
         raise InputError(f"{initial.name} has {initial.n_frames} frames, fewer than the {simulator.window_frames} "
                          f"that the model's window of {history} positions at frame stride {stride} spans.")
+    given = 1 if from_rest else history  # frames of `initial` that the rollout starts from
+    window = np.repeat(start.positions[:1], history, axis=0) if from_rest else start.positions[:history]
     per_step = None if stop_speed is None else stop_speed * start.frame_dt  # m/s -> m per step
     with torch.no_grad():
         positions = rollout(
             simulator,
-            torch.from_numpy(np.ascontiguousarray(start.positions[:history])),
+            torch.from_numpy(np.ascontiguousarray(window)),
             torch.from_numpy(initial.particle_type),
             material_tensor(simulator, initial),
-            max(math.ceil((n_frames - 1) / stride) + 1 - history, 0),
+            max(math.ceil((n_frames - 1) / stride) + 1 - given, 0),
             initial.bounds,
             progress=progress,
             stop_speed=per_step,
         )
+    positions = positions[history - given:]  # from rest: the window's copies of frame 0 become one frame 0
     return Trajectory(
         positions.cpu().numpy().astype(np.float32), initial.particle_type, initial.material_id,
         initial.materials, start.frame_dt, initial.bounds, initial.name,
-        {"engine": "gns", "frames_requested": n_frames, "frame_stride": stride},
+        {"engine": "gns", "frames_requested": n_frames, "frame_stride": stride,
+         "start": "rest" if from_rest else "frames"},
     )
 
 
-def scene_at_rest(scene: Scene, frames: int = HISTORY) -> Trajectory:
-    """`frames` identical frames of the scene's filled points: a start from rest (pass the
-    model's Simulator.window_frames, so that its window reads `history` of them)."""
+def scene_at_rest(scene: Scene, frames: int = 1) -> Trajectory:
+    """`frames` identical frames of the scene's filled points: the scene at rest, where
+    rollout_trajectory starts (from_rest) every scene."""
     points = fill_points(scene)
     positions = np.repeat(points.position[None].astype(np.float32), frames, axis=0)
     return trajectory_for_scene(scene, positions, points.particle_type, points.material_id)

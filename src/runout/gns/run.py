@@ -29,7 +29,7 @@ def initial_state(
     its own cells differ)."""
     if source.is_file():
         scene = at_model_spacing(load_scene(source), simulator, str(source), log)
-        start = scene_at_rest(scene, simulator.window_frames)
+        start = scene_at_rest(scene)
         start.info["frames"] = scene.time.frames
         return start, None, _ignored_cohesion(scene, simulator)
     if (source / "trajectory.npz").is_file():

@@ -2,7 +2,13 @@
 
 A window at frame stride K starting at frame t holds frames t, t + K, ..., t + (history - 1) K
 and its target is frame t + history K; every start frame t that fits is a window, so every
-frame is used (K = 1: consecutive frames). A sample for n pushforward steps (runout.train)
+frame is used (K = 1: consecutive frames). Windows also start before frame 0, down to
+t = -(history - 1) K, with frame 0 standing for every frame before it: the MPM starts from rest
+(after its geostatic relaxation), so these are the windows of a scene at rest, which is how
+every user's rollout starts (runout.gns.rollout). With `static_tail` F, a simulation's windows
+end F frames after its last frame in which a soil point moved faster than STILL_SPEED: the
+steps go to motion rather than to a deposit that has stopped, and F frames of it remain so the
+model still learns to keep a deposit still. A sample for n pushforward steps (runout.train)
 also holds the true frames t + (history + 1) K, ..., t + (history + n) K, the last of which
 is then its target, so its start t must leave room for them. All simulations of a split live
 on the training device; a batch picks windows uniformly over every (simulation, start frame)
@@ -19,9 +25,13 @@ from pathlib import Path
 
 import torch
 
+from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
 from runout.gns.schema import HISTORY, FeatureSchema, material_names_for_width
 from runout.simfiles import read_simulations
+
+
+STILL_SPEED = 0.05  # m/s: soil slower than this has stopped (as the rollout's default --stop-speed)
 
 
 @dataclass
@@ -42,7 +52,8 @@ class Simulations:
     """The simulations of one split file on `device`, sampled in windows at frame stride 1
     (with_stride: the same data at another stride), with 0 or more pushforward steps."""
 
-    def __init__(self, path: str | Path, device: torch.device, history: int = HISTORY, material_names=None):
+    def __init__(self, path: str | Path, device: torch.device, history: int = HISTORY, material_names=None,
+                 rest_windows: bool = True, static_tail: int | None = None, frame_dt: float = FRAME_DT):
         sims = read_simulations(path)
         widths = {0 if m is None else m.shape[1] for _, _, m in sims}
         if len(widths) != 1:
@@ -55,7 +66,20 @@ class Simulations:
         self.material = [
             (torch.zeros((len(t), 0)) if m is None else torch.from_numpy(m)).to(device) for _, t, m in sims
         ]
+        self.rest_windows = rest_windows
+        self.static_tail = static_tail
+        self.last_moving = [_last_moving_frame(p, t, STILL_SPEED * frame_dt) for p, t in zip(self.positions, self.particle_type)]
         self._index_windows(1)
+
+    def _usable_frames(self, sim: int) -> int:
+        """Frames of simulation `sim` that windows may reach (all, or up to static_tail past the flow's stop)."""
+        n = self.positions[sim].shape[0]
+        return n if self.static_tail is None else min(n, self.last_moving[sim] + self.static_tail + 1)
+
+    @property
+    def first_start(self) -> int:
+        """The earliest window start frame: -(history - 1) K with rest windows, else 0."""
+        return -(self.history - 1) * self.stride if self.rest_windows else 0
 
     def _index_windows(self, stride: int) -> None:
         self.stride = stride
@@ -65,11 +89,12 @@ class Simulations:
     def check_windows(self, unroll: int) -> None:
         """InputError unless some simulation has a window for `unroll` pushforward steps."""
         if self.n_windows_for(unroll) == 0:
-            span = (self.history + unroll) * self.stride
+            span = (self.history + unroll) * self.stride + self.first_start
             steps = f" and {unroll} pushforward steps" if unroll else ""
+            start = " from rest" if self.rest_windows else ""
             raise InputError(
-                f"{self.path}: no simulation has more than {span} frames, which a window of {self.history} "
-                f"positions at frame stride {self.stride}{steps} spans; choose a smaller --frame-stride"
+                f"{self.path}: no simulation has more than {span} usable frames, which a window of {self.history} "
+                f"positions{start} at frame stride {self.stride}{steps} spans; choose a smaller --frame-stride"
                 f"{' or --pushforward' if unroll else ''}."
             )
 
@@ -77,8 +102,8 @@ class Simulations:
         if unroll not in self._first_window:
             span = (self.history + unroll) * self.stride  # frames from a window's first position to its target
             first = [0]
-            for p in self.positions:
-                first.append(first[-1] + max(p.shape[0] - span, 0))
+            for sim in range(len(self.positions)):
+                first.append(first[-1] + max(self._usable_frames(sim) - span - self.first_start, 0))
             self._first_window[unroll] = first
         return self._first_window[unroll]
 
@@ -135,7 +160,18 @@ class Simulations:
         """(window [N, history, 2], future [N, unroll + 1, 2], particle_type, material) of window k."""
         first = self._windows(unroll)
         sim = bisect.bisect_right(first, k) - 1
-        t = k - first[sim]
-        span = (self.history + unroll) * self.stride
-        frames = self.positions[sim][t : t + span + 1 : self.stride].transpose(0, 1)  # [N, history + unroll + 1, 2]
+        t = k - first[sim] + self.first_start  # start frame; frame 0 stands for the frames before it
+        index = (t + self.stride * torch.arange(self.history + unroll + 1)).clamp(min=0)
+        frames = self.positions[sim][index.to(self.positions[sim].device)].transpose(0, 1)  # [N, history + unroll + 1, 2]
         return frames[:, : self.history], frames[:, self.history :], self.particle_type[sim], self.material[sim]
+
+
+def _last_moving_frame(positions: torch.Tensor, particle_type: torch.Tensor, still: float) -> int:
+    """The last frame at which some soil point moved more than `still` (m per frame) since
+    the frame before (0 when nothing ever moves)."""
+    soil = particle_type != PARTICLE_TYPE_KINEMATIC
+    if positions.shape[0] < 2 or not bool(soil.any()):
+        return 0
+    fastest = (positions[1:, soil] - positions[:-1, soil]).norm(dim=-1).amax(dim=1)  # [frames - 1]
+    moving = torch.nonzero(fastest > still).flatten()
+    return int(moving[-1]) + 1 if len(moving) else 0

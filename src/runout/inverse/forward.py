@@ -13,19 +13,20 @@ from runout.gns.rollout import rollout
 from runout.gns.simulator import Simulator
 from runout.inverse.observation import Observation
 from runout.inverse.problem import ForwardModel, InverseProblem, material_table
-from runout.inverse.spec import INPUT_FRAMES, InverseSpec
+from runout.inverse.spec import InverseSpec
 
 
 def gns_forward(
     simulator: Simulator, observation: Observation, bounds: np.ndarray, checkpoint: bool = True, progress: bool = False
 ) -> ForwardModel:
-    """A rollout from the scene at rest (INPUT_FRAMES identical frames) for observation.model_steps
-    steps, each step recomputed in the backward pass when `checkpoint`; returns the frames
-    observed, [F, N, 2] (m), frame f being rollout frame f / frame stride. `progress` shows a
-    bar over the forward steps."""
+    """A rollout from the scene at rest (its window the initial positions repeated, frame 0) for
+    observation.model_steps steps, each step recomputed in the backward pass when `checkpoint`;
+    returns the frames observed, [F, N, 2] (m), frame f being step f / frame stride. `progress`
+    shows a bar over the forward steps."""
     device = simulator.vel_mean.device
     initial = torch.tensor(observation.initial, dtype=torch.float32, device=device)
-    window = initial[None].expand(INPUT_FRAMES, -1, -1)
+    history = simulator.schema.history
+    window = initial[None].expand(history, -1, -1)
     particle_type = torch.as_tensor(observation.particle_type, device=device)
     frames = torch.tensor(observation.model_frames, device=device)
 
@@ -34,7 +35,7 @@ def gns_forward(
             simulator, window, particle_type, features, observation.model_steps, bounds,
             checkpoint=checkpoint, progress=progress,
         )
-        return positions[frames]
+        return positions[history - 1:][frames]  # the window's copies of frame 0 are one frame 0
 
     return forward
 
@@ -48,10 +49,6 @@ def inverse_problem(
     spec: InverseSpec, observation: Observation, simulator: Simulator, checkpoint: bool = True, progress: bool = False
 ) -> InverseProblem:
     """The GNS inverse problem; the model's own weights are frozen (no gradient wasted on them)."""
-    if simulator.schema.history != INPUT_FRAMES:
-        raise InputError(
-            f"the model reads {simulator.schema.history} positions per step; the inverse seeds rollouts with {INPUT_FRAMES}."
-        )
     if observation.stride != simulator.frame_stride:
         raise InputError(f"the observation was read for frame stride {observation.stride} but the model steps "
                          f"{simulator.frame_stride} frames at a time; load it with stride={simulator.frame_stride}.")

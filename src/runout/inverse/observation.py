@@ -2,9 +2,9 @@
 
 The target's points must be the scene's points in the order `fill_points` seeds them (as a
 trajectory from `runout mpm` of the same scene has them). Frames are the target's (dataset)
-frames; a GNS of frame stride K predicts only frames 6K, 7K, ... (its rollout frame j is
-frame jK), so with it every observed frame must be one of those and "final" means the last
-of those the target has.
+frames, frame 0 being the scene at rest; a GNS of frame stride K predicts only frames K, 2K,
+... (its rollout starts from rest at frame 0 and its step j reaches frame jK), so with it
+every observed frame must be one of those and "final" means the last of those the target has.
 """
 
 from __future__ import annotations
@@ -16,16 +16,16 @@ import numpy as np
 
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
-from runout.inverse.spec import INPUT_FRAMES, InverseSpec, LossSpec
+from runout.inverse.spec import InverseSpec, LossSpec
 from runout.scene import fill_points
 from runout.trajectory import Trajectory, load_trajectory
 
 
 @dataclass
 class Observation:
-    frames: tuple[int, ...]  # observed frame numbers (0-based; multiples of stride from 6 x stride)
+    frames: tuple[int, ...]  # observed frame numbers (0 is the scene at rest; positive multiples of stride)
     positions: np.ndarray  # [F, N, 2] m, target positions at those frames
-    steps: int  # the rollout reaches frame INPUT_FRAMES - 1 + steps (at stride 1: its steps)
+    steps: int  # the rollout reaches frame `steps` (dataset frames from the scene at rest)
     initial: np.ndarray  # [N, 2] m, the scene at rest
     particle_type: np.ndarray  # [N]
     material_id: np.ndarray  # [N] index into spec.scene.material_names
@@ -34,13 +34,13 @@ class Observation:
 
     @property
     def model_steps(self) -> int:
-        """Steps of that model from INPUT_FRAMES frames at rest to (at least) the last frame
-        INPUT_FRAMES - 1 + steps; `steps` itself at stride 1."""
-        return -(-(INPUT_FRAMES - 1 + self.steps) // self.stride) - (INPUT_FRAMES - 1)
+        """Steps of that model from the scene at rest to (at least) frame `steps`; `steps`
+        itself at stride 1."""
+        return -(-self.steps // self.stride)
 
     @property
     def model_frames(self) -> tuple[int, ...]:
-        """The observed frames as indices of that model's rollout (frame / stride)."""
+        """The observed frames as indices of that model's rollout from rest, frame 0 first (frame / stride)."""
         return tuple(f // self.stride for f in self.frames)
 
     @property
@@ -101,12 +101,12 @@ def _check_same_points(traj: Trajectory, initial: np.ndarray, path: Path, scene_
 
 def _frames_in_trajectory(spec: InverseSpec, n_frames: int, stride: int) -> tuple[tuple[int, ...], int]:
     last_target = n_frames - 1
-    if last_target < INPUT_FRAMES * stride:
+    if last_target < stride:
         raise InputError(f"{spec.target.trajectory}: the target has only {n_frames} frames; "
-                         f"it needs more than {INPUT_FRAMES * stride}.")
+                         f"it needs more than {stride}.")
     frames = spec.target.frames
     if frames is None:
-        last = last_target if spec.steps is None else INPUT_FRAMES - 1 + spec.steps
+        last = last_target if spec.steps is None else spec.steps
         frames = (last // stride * stride,)  # the last frame the model predicts
     if frames[-1] > last_target:
         raise InputError(
@@ -118,16 +118,16 @@ def _frames_in_trajectory(spec: InverseSpec, n_frames: int, stride: int) -> tupl
 def _check_stride(spec: InverseSpec, frames: tuple[int, ...], stride: int) -> None:
     """Each observed frame must be one that a model of frame stride `stride` predicts."""
     for f in frames:
-        if f % stride or f < INPUT_FRAMES * stride:
+        if f % stride or f < stride:
             raise InputError(f"{spec.source}: observed frame {f} is not one the model predicts (at frame stride "
-                             f"{stride}: the multiples of {stride} from frame {INPUT_FRAMES * stride}).")
+                             f"{stride}: the multiples of {stride} from frame {stride}).")
 
 
 def _steps(spec: InverseSpec, frames: tuple[int, ...]) -> int:
     """Roll out as far as the last observed frame, unless the spec sets the steps."""
     if spec.steps is None:
-        return frames[-1] - (INPUT_FRAMES - 1)
-    last = INPUT_FRAMES - 1 + spec.steps
+        return frames[-1]
+    last = spec.steps
     if frames[-1] > last:
         raise InputError(
             f"{spec.source}: observed frame {frames[-1]} is beyond the rollout, whose last frame is {last} "
@@ -148,10 +148,10 @@ def _observed_positions(spec: InverseSpec, n_points: int, scene_name: str):
         positions = positions[None]
     frames = spec.target.frames
     if frames is None:
-        steps = spec.steps if spec.steps is not None else spec.scene.time.frames - INPUT_FRAMES
+        steps = spec.steps if spec.steps is not None else spec.scene.time.frames - 1
         if steps < 1:
             raise InputError(f"{spec.source}: the scene's {spec.scene.time.frames} frames leave no step to roll out.")
-        frames = (INPUT_FRAMES - 1 + steps,)
+        frames = (steps,)
     if positions.shape != (len(frames), n_points, 2):
         raise InputError(
             f"{path}: holds an array of shape {positions.shape}; expected ({len(frames)}, {n_points}, 2) "

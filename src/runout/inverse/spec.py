@@ -1,8 +1,9 @@
 """The inverse spec: which material strengths to find, from which observation (TOML).
 
 Units: friction angle phi in degrees, cohesion c in kPa, positions in metres. Frames are
-0-based indices of the target trajectory; a GNS rollout starts from 6 copies of the scene at
-rest (frames 0-5), so the first frame it predicts is frame 6. See docs/inverse-format.md.
+0-based indices of the target trajectory; frame 0 is the scene at rest, where every engine
+starts (a GNS's window holds copies of it), so the first frame one can observe is frame 1.
+See docs/inverse-format.md.
 """
 
 from __future__ import annotations
@@ -18,7 +19,6 @@ from runout.errors import InputError
 from runout.scene import MAX_STRENGTH, Scene, load_scene
 from runout.scene.files import check_keys
 
-INPUT_FRAMES = 6  # a rollout is seeded with 6 position frames
 
 # spec key -> (Material field, unit, smallest allowed value, largest allowed value)
 PROPERTIES = {
@@ -277,11 +277,8 @@ def _frames(value, source: Path) -> tuple[int, ...] | None:
         raise InputError(f"{source}: target.frames must be \"final\" or a list of frame numbers, e.g. [200, 479].")
     if len(set(value)) != len(value) or sorted(value) != value:
         raise InputError(f"{source}: target.frames = {value} must be increasing without repeats.")
-    if value[0] < INPUT_FRAMES:
-        raise InputError(
-            f"{source}: target.frames starts at {value[0]}, but frames 0-5 are the rollout's given initial state; "
-            f"observe frame {INPUT_FRAMES} or later."
-        )
+    if value[0] < 1:
+        raise InputError(f"{source}: target.frames starts at {value[0]}, but frame 0 is the scene at rest; observe frame 1 or later.")
     return tuple(value)
 
 
