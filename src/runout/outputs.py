@@ -1,7 +1,9 @@
-"""Where results go: checked before any work, never mixing the results of two runs.
+"""Where results go: checked before any work, never mixing the results of two runs, never
+deleting a file runout did not write.
 
-Every command that writes a folder records itself in OUT/.runout.json. Before any work,
-`check_folder` refuses (InputError, one sentence):
+Every command that writes a folder records itself in OUT/.runout.json, with the top-level
+names (files and folders) its run writes there. Before any work, `check_folder` refuses
+(InputError, one sentence):
 
 - an --out that is an existing file, or lies below one;
 - a folder (or, for a new folder, its nearest existing parent) that cannot be written;
@@ -10,11 +12,15 @@ Every command that writes a folder records itself in OUT/.runout.json. Before an
 - a non-empty folder that runout did not write, even with --force (it is never emptied).
 
 What the same command does with its own folder is its mode: "replace" (mpm, rollout,
-compare, demo, families: the new results replace the old), "resume" (generate, train,
-invert: the run continues; --force starts it afresh) or "add" (evaluate: each study adds
-its own subfolder). When results are replaced (--force on another command's folder, or mode
-"replace"), `claim` first removes whatever in the folder the new run would not rewrite,
-so a folder never looks like a mix of runs.
+compare, demo, families, validate: the new results replace the old), "resume" (generate,
+train, invert: the run continues; --force starts it afresh) or "add" (evaluate: each study
+adds its own subfolder). When results are replaced (--force on another command's folder, or
+mode "replace"), `claim` first removes the previous run's names that the new run will not
+rewrite, so a folder never looks like a mix of runs; --force on a resumable run removes all
+of them. Only names the marker lists are ever removed: a user's notes, a scene file or a
+nested run's folder beside the results stay. A marker or folder from before the marker
+listed its names is read conservatively: only names that command is known to write (KNOWN)
+are removed. --force names what it removes on stderr before removing it.
 
 Pictures (`check_picture`) must be named with a .png, .pdf or .svg suffix, so what is
 written is exactly the file named.
@@ -25,8 +31,10 @@ from __future__ import annotations
 import json
 import os
 import shutil
+import sys
 import tempfile
 from dataclasses import dataclass
+from fnmatch import fnmatchcase
 from pathlib import Path
 
 import runout
@@ -44,6 +52,23 @@ LEGACY = {
     "rollout": (("metrics.json", "trajectory.npz"),),
     "demo": (("forward", "inverse"),),
     "evaluate": tuple((f"{study}/summary.json",) for study in ("columns", "slope", "diagnostics", "inverse", "sensitivity")),
+}
+# Every top-level name (fnmatch pattern) each command writes: what a marker without the list
+# of names (or a LEGACY folder) may lose on replace. Anything else there is kept.
+KNOWN = {
+    "mpm": ("trajectory.npz", "metadata.json", "initial.png", "final.png", "animation.gif", "vtk"),
+    "rollout": ("trajectory.npz", "metadata.json", "snapshots.png", "metrics.json", "position_mse.png",
+                "animation.gif", "animation.mp4", "vtk"),
+    "compare": ("metrics.json", "final.png", "gns", "animation.gif", "animation.mp4"),
+    "demo": ("forward", "inverse"),
+    "families": ("[abcd]_[0-9][0-9][0-9].toml", "column_[0-9][0-9][0-9].toml"),
+    "validate": ("results.json", "validation.md", "cut_phi*.png", "column_*.png", "dry_column_*.png",
+                 "griffiths_lane_*.png", "block_incline_*.png", "convergence_*.png"),
+    "generate": ("generate.json", "scenes", "parts", "train.npz", "valid.npz", "test.npz", "metadata.json"),
+    "train": ("checkpoint.pt", "best.pt", "log.jsonl", "tensorboard"),
+    "invert": ("history.json", "history.csv", "loss.png", "parameters.png", "deposit.png", "deposits",
+               "start_[0-9][0-9]", "starts.json", "starts.csv", "starts.png"),
+    "evaluate": ("columns", "slope", "diagnostics", "inverse", "sensitivity"),
 }
 
 
@@ -87,23 +112,34 @@ def check_folder(
 
 
 def claim(folder: OutputFolder) -> Path:
-    """Create the folder, remove what a replacing run would not rewrite, and record the command."""
+    """Create the folder, remove the previous run's names this run would not rewrite (all of
+    them on --force over a resumable run), and record the command and the names it writes.
+    Nothing the previous run did not write is touched; --force names what it removes first."""
     path = folder.path
     path.mkdir(parents=True, exist_ok=True)
+    previous = _written(path, folder.owner)
     own = folder.owner == folder.command
-    if folder.owner is None or (own and folder.mode == "add") or (own and folder.mode == "resume" and not folder.force):
-        keep = None  # nothing to remove
+    if own and (folder.mode == "add" or (folder.mode == "resume" and not folder.force)):
+        remove, kept = set(), previous  # the run continues
     elif own and folder.mode == "resume":
-        keep = set()  # --force: start afresh
+        remove, kept = previous, set()  # --force: start afresh
     else:
-        keep = folder.writes  # replacing results: remove what this run does not rewrite
-    if keep is not None:
-        for entry in path.iterdir():
-            if entry.name not in keep and entry.name != MARKER:
-                shutil.rmtree(entry) if entry.is_dir() and not entry.is_symlink() else entry.unlink()
-    record = {"command": folder.command, "runout": runout.__version__}
-    (path / MARKER).write_text(json.dumps(record) + "\n")
+        remove, kept = previous - folder.writes, set()  # replacing results
+    if remove and folder.force:
+        print(f"--force removes {', '.join(sorted(remove))} from {path} (the results of `runout {folder.owner}`; "
+              "files runout did not write stay)", file=sys.stderr)
+    for name in remove:
+        entry = path / name
+        shutil.rmtree(entry) if entry.is_dir() and not entry.is_symlink() else entry.unlink()
+    _write_marker(path, folder.command, kept | folder.writes)
     return path
+
+
+def record(path: str | Path, names) -> None:
+    """Add to OUT/.runout.json names a run wrote that it could not name before it ran."""
+    path = Path(path)
+    data = _read_marker(path)
+    _write_marker(path, data["command"], set(data["written"] or ()) | set(names))
 
 
 def prepare_folder(path, command: str, writes=(), mode: str = "replace", force: bool = False, option="--out") -> Path:
@@ -128,16 +164,45 @@ def _owner(path: Path) -> str | None:
     """The command whose results the folder holds, None if empty or new, 'foreign' otherwise."""
     if not path.is_dir() or not any(path.iterdir()):
         return None
-    marker = path / MARKER
-    if marker.is_file():
-        try:
-            return str(json.loads(marker.read_text())["command"])
-        except (ValueError, KeyError, TypeError):
-            return "foreign"
+    if (path / MARKER).is_file():
+        data = _read_marker(path)
+        return "foreign" if data is None else data["command"]
     for command, signatures in LEGACY.items():
         if any(all((path / name).exists() for name in names) for names in signatures):
             return command
     return "foreign"
+
+
+def _read_marker(path: Path) -> dict | None:
+    """OUT/.runout.json as {"command": str, "written": list of names, or None when it predates
+    the list}; None when it is missing or not a marker runout wrote."""
+    try:
+        data = json.loads((path / MARKER).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(data, dict) or not isinstance(data.get("command"), str):
+        return None
+    written = data.get("written")
+    if written is not None and not (isinstance(written, list) and all(isinstance(n, str) for n in written)):
+        return None
+    return {"command": data["command"], "written": written}
+
+
+def _written(path: Path, owner: str | None) -> set[str]:
+    """Names now in the folder that the runs of `owner` wrote there: those its marker lists,
+    or, for a marker or folder from before the list, those that command is known to write."""
+    if owner is None:
+        return set()
+    present = {entry.name for entry in path.iterdir()} - {MARKER}  # plain names only: nothing outside is reached
+    data = _read_marker(path)
+    if data is not None and data["written"] is not None:
+        return present & set(data["written"])
+    return {name for name in present if any(fnmatchcase(name, pattern) for pattern in KNOWN.get(owner, ()))}
+
+
+def _write_marker(path: Path, command: str, written) -> None:
+    marker = {"command": command, "runout": runout.__version__, "written": sorted(written)}
+    (path / MARKER).write_text(json.dumps(marker) + "\n")
 
 
 def _check_writable(path: Path, option: str) -> None:

@@ -20,7 +20,7 @@ def compare(
     device: str = typer.Option("cpu", "--device", help="cpu or cuda, for both the MPM and the GNS."),
     cache: Path = typer.Option(DEFAULT_CACHE, "--cache", help="Folder of cached MPM runs, keyed by a hash of the scene's TOML."),
     progress: bool = typer.Option(True, "--progress/--no-progress", help="Show progress bars."),
-    force: bool = typer.Option(False, "--force", help="Replace another command's results in --out (removing what this run does not rewrite)."),
+    force: bool = typer.Option(False, "--force", help="Replace another command's results in --out (removing, and naming, the files that command wrote and this run does not rewrite; files runout did not write stay)."),
 ) -> None:
     """Run the MPM and the GNS on SCENE at the model's resolution: runout errors of both fronts
     and of the farthest point, deposit overlap (IoU), position MSE and both wall times in

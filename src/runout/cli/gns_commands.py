@@ -103,7 +103,7 @@ def rollout(
     from_frames: bool = typer.Option(False, "--from-frames", help="Start a trajectory or dataset from its first frames (the public GNS's start) instead of from rest, its frame 0 held."),
     animation: bool = typer.Option(True, "--animation/--no-animation", help="Write an animation (beside the MPM when there is one)."),
     vtk: bool = typer.Option(False, "--vtk", help="Also write ParaView files: vtk/frame_*.vtu and vtk/trajectory.pvd."),
-    force: bool = typer.Option(False, "--force", help="Replace another command's results in --out (removing what this run does not rewrite)."),
+    force: bool = typer.Option(False, "--force", help="Replace another command's results in --out (removing, and naming, the files that command wrote and this run does not rewrite; files runout did not write stay)."),
 ) -> None:
     """Roll the GNS out from rest (the first frame held) until FRAMES or until the flow stops."""
     from runout.gns.checkpoint import load_simulator

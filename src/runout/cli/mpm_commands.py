@@ -8,7 +8,7 @@ import typer
 
 from runout.cli.app import app
 
-FORCE = typer.Option(False, "--force", help="Replace another command's results in --out (removing what this run does not rewrite).")
+FORCE = typer.Option(False, "--force", help="Replace another command's results in --out (removing, and naming, the files that command wrote and this run does not rewrite; files runout did not write stay).")
 
 
 @app.command()

@@ -22,17 +22,19 @@ def validate(
     theorems, the paper's three columns, dry columns against the 2D experiments, Griffiths &
     Lane's slope, a block on an incline, and time-step / point-density convergence."""
     from runout.errors import InputError
-    from runout.outputs import check_folder, claim
+    from runout.outputs import check_folder, claim, record
     from runout.validate import CASES, run_validation
 
     unknown = [c for c in (case or []) if c not in CASES]
     if unknown:
         raise InputError(f"--case {unknown[0]!r} is not a validation case; choose from {', '.join(CASES)}.")
-    folder = check_folder(out, "validate", (), mode="replace", force=force)
+    writes = ("results.json",) + (("validation.md",) if report is None else ())
+    folder = check_folder(out, "validate", writes, mode="replace", force=force)
     claim(folder)
     parts = ["runout validate"] + (["--quick"] if quick else []) + [f"--case {c}" for c in case or []]
     parts += [f"--out {out}"] + ([f"--report {report}"] if report else [])
     results = run_validation(out, quick=quick, cases=case or None, report=report, command=" ".join(parts),
                              progress=typer.echo)
+    record(out, [Path(r.figure).name for r in results])  # one picture per check, named by its result
     met = sum(r.met for r in results)
     typer.echo(f"{met} of {len(results)} checks met; wrote {report or out / 'validation.md'}")
