@@ -78,26 +78,28 @@ def run_pilots(names: list[str], data: Path, out: Path, minutes: float, parallel
 
 
 def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int | None = None) -> list[dict]:
-    """Roll every pilot's last checkpoint out from rest (frame 0 repeated, as users' scenes
-    start) over all frames of the first n_valid validation scenes, and score it against the
-    MPM beside a prediction in which nothing moves (standing still)."""
+    """Roll every pilot's last checkpoint out from rest (frame 0 held, as users' scenes start)
+    over all frames of the first n_valid validation scenes, and score it against the MPM beside
+    a prediction in which nothing moves (runout.evaluate.heldout)."""
     import numpy as np
     import torch
 
     from runout.dataset import split_trajectories
+    from runout.evaluate.heldout import score, standing_still
     from runout.gns.checkpoint import load_simulator, read_checkpoint
     from runout.gns.rollout import rollout_trajectory
 
     torch.set_num_threads(threads or os.cpu_count() or 1)
     truths = list(split_trajectories(data, "valid", n_valid))
-    rows = [{"pilot": "standing still", **_scores([still(t) for t in truths], truths)}]
-    print(json.dumps(rows[-1]), flush=True)
+    rows = []
     for name in names:
         path = out / name / "checkpoint.pt"
         if not path.exists():
             continue
         step = int(read_checkpoint(path)["step"])
         simulator = load_simulator(path)
+        if not rows:
+            rows.append({"pilot": "standing still", **score([standing_still(t) for t in truths], truths, simulator.point_spacing)})
         log = [json.loads(ln) for ln in (out / name / "log.jsonl").read_text().splitlines() if ln]
         wall = max((r.get("wall_s", 0.0) for r in log), default=0.0)
         t0 = time.perf_counter()
@@ -106,44 +108,10 @@ def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int
             "pilot": name, "options": " ".join(PRESETS[name]), "steps": step, "train_wall_s": wall,
             "s_per_step": wall / max(step, 1),
             "final_loss": float(np.mean([r["loss"] for r in log if "loss" in r][-20:])),
-            **_scores(predicted, truths), "rollout_s": time.perf_counter() - t0,
+            **score(predicted, truths, simulator.point_spacing), "rollout_s": time.perf_counter() - t0,
         })
-        print(json.dumps(rows[-1]), flush=True)
+        print(json.dumps({k: v for k, v in rows[-1].items() if k != "per_scene"}), flush=True)
     return rows
-
-
-def still(truth):
-    """A prediction in which nothing moves: frame 0 held for every frame."""
-    import dataclasses
-
-    import numpy as np
-
-    frozen = np.repeat(truth.positions[:1], truth.n_frames, axis=0)
-    return dataclasses.replace(truth, positions=frozen, info=dict(truth.info))
-
-
-def _scores(predicted, truths) -> dict:
-    """Means over the scenes: position error (m, every soil point and frame), |front error|
-    relative to the MPM front's travel (sides that travel more than a point spacing, 4 m),
-    |extent runout error| (relative), and the per-scene mean displacement of the last frame."""
-    import numpy as np
-
-    from runout.metrics import compare, final_displacement, front_errors
-
-    fronts, pos, runout, moved, moved_mpm = [], [], [], [], []
-    for p, t in zip(predicted, truths):
-        e = front_errors(p, t)
-        pos.append(e["position_error_mean_m"])
-        for side in ("left", "right"):
-            if e[f"{side}_front_travel_m"] > 4.0:
-                fronts.append(abs(e[f"{side}_front_error_m"]) / e[f"{side}_front_travel_m"])
-        runout.append(abs(compare(p, t)["runout_error"]))
-        moved.append(float(final_displacement(p).mean()))
-        moved_mpm.append(float(final_displacement(t).mean()))
-    return {"position_error_m": float(np.mean(pos)), "front_error_rel": float(np.mean(fronts)) if fronts else float("nan"),
-            "fronts_scored": len(fronts), "runout_error_abs": float(np.mean(runout)),
-            "mean_displacement_m": float(np.mean(moved)), "mean_displacement_mpm_m": float(np.mean(moved_mpm)),
-            "scenes": len(truths)}
 
 
 def table(rows: list[dict]) -> str:
@@ -151,8 +119,8 @@ def table(rows: list[dict]) -> str:
              "extent runout error | mean displacement (MPM) m |", "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         steps = f"{r['steps']} | {r['s_per_step']:.3f} | {r['final_loss']:.3f}" if "steps" in r else "— | — | —"
-        lines.append(f"| {r['pilot']} | {steps} | {r['position_error_m']:.2f} | {100 * r['front_error_rel']:.1f} % | "
-                     f"{100 * r['runout_error_abs']:.1f} % | {r['mean_displacement_m']:.1f} ({r['mean_displacement_mpm_m']:.1f}) |")
+        lines.append(f"| {r['pilot']} | {steps} | {r['position_error_m']:.2f} | {100 * r['front_error']:.1f} % | "
+                     f"{100 * r['runout_error']:.1f} % | {r['displacement_m']:.1f} ({r['displacement_mpm_m']:.1f}) |")
     return "\n".join(lines)
 
 

@@ -1,0 +1,78 @@
+"""Held-out scenes rolled out from rest, the way users run a model, scored against the MPM and
+beside a prediction in which nothing moves (standing still): the measure of every training
+pilot and campaign chunk (docs/training.md).
+
+Per scene, at the times the two trajectories share (runout.metrics.at_common_times):
+
+- position error (m): the distance between GNS and MPM positions of every soil point, averaged
+  over every point and shared frame;
+- front error: for each side (the leftmost and the rightmost soil point at the last shared
+  frame) |x_GNS - x_MPM| over the MPM front's travel from frame 0, for the sides whose front
+  travels more than MIN_TRAVEL_SPACINGS point spacings (standing still scores 1 on every one);
+- extent runout error: |L_GNS - L_MPM| / L_MPM of the soil's horizontal extent at the last frame;
+- mean displacement (m) of the soil at the last frame, GNS and MPM.
+
+`score` averages them over the scenes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from runout.metrics import compare, final_displacement, front_errors
+from runout.trajectory import Trajectory
+
+MIN_TRAVEL_SPACINGS = 1.0  # a front that travels less than this many point spacings is not scored
+
+
+def standing_still(truth: Trajectory) -> Trajectory:
+    """A prediction in which nothing moves: the truth's frame 0 held for every frame."""
+    frozen = np.repeat(truth.positions[:1], truth.n_frames, axis=0)
+    return replace(truth, positions=frozen, info=dict(truth.info))
+
+
+def scene_scores(predicted: Trajectory, truth: Trajectory, spacing: float) -> dict:
+    """The scores of one scene (module docstring); spacing: the points' spacing (m)."""
+    fronts = front_errors(predicted, truth)
+    relative = [abs(fronts[f"{side}_front_error_m"]) / fronts[f"{side}_front_travel_m"]
+                for side in ("left", "right") if fronts[f"{side}_front_travel_m"] > MIN_TRAVEL_SPACINGS * spacing]
+    return {
+        "name": truth.name,
+        "position_error_m": fronts["position_error_mean_m"],
+        "front_errors": relative,
+        "runout_error": abs(compare(predicted, truth)["runout_error"]),
+        "displacement_m": float(final_displacement(predicted).mean()),
+        "displacement_mpm_m": float(final_displacement(truth).mean()),
+    }
+
+
+def score(predicted: list[Trajectory], truths: list[Trajectory], spacing: float) -> dict:
+    """Means over the scenes, and each scene's scores under "scenes"."""
+    scenes = [scene_scores(p, t, spacing) for p, t in zip(predicted, truths)]
+    fronts = [e for s in scenes for e in s["front_errors"]]
+    return {
+        "scenes": len(scenes),
+        "position_error_m": float(np.mean([s["position_error_m"] for s in scenes])),
+        "front_error": float(np.mean(fronts)) if fronts else float("nan"),
+        "fronts_scored": len(fronts),
+        "runout_error": float(np.mean([s["runout_error"] for s in scenes])),
+        "displacement_m": float(np.mean([s["displacement_m"] for s in scenes])),
+        "displacement_mpm_m": float(np.mean([s["displacement_mpm_m"] for s in scenes])),
+        "per_scene": scenes,
+    }
+
+
+def evaluate_heldout(simulator, data: str | Path, split: str = "valid", count: int = 16, progress: bool = False) -> dict:
+    """The first `count` scenes of DATA/SPLIT.npz rolled out from rest over all their frames:
+    {"model": score(...), "standing_still": score(...)}."""
+    from runout.dataset import split_trajectories
+    from runout.gns.rollout import rollout_trajectory
+
+    truths = list(split_trajectories(data, split, count))
+    spacing = simulator.point_spacing
+    predicted = [rollout_trajectory(simulator, t, t.n_frames, stop_speed=None, progress=progress) for t in truths]
+    return {"model": score(predicted, truths, spacing),
+            "standing_still": score([standing_still(t) for t in truths], truths, spacing)}
