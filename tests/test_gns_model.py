@@ -187,3 +187,20 @@ def test_the_case_holds_kinematic_points_and_keeps_the_rest_inside_the_walls():
     predicted = torch.tensor([[-1.0, 2.0], [3.0, 3.0], [12.0, 6.0]])
     out = case.constrain(predicted, current)
     assert torch.equal(out, torch.tensor([[0.0, 2.0], [2.0, 0.5], [10.0, 5.0]]))
+
+
+def test_the_moving_weight_counts_moving_points_that_many_times():
+    from runout.gns.samples import TrainingBatch
+    from runout.gns.simulator import Case
+    from runout.train import MOVING_SPEED, _moving_weights
+
+    dt = 0.0375  # s per step
+    window = torch.zeros((3, 6, 2))
+    step = torch.tensor([[0.0, 0.0], [2 * MOVING_SPEED * dt, 0.0], [0.0, 0.5 * MOVING_SPEED * dt]])  # still, moving, slow
+    batch = TrainingBatch(window, step[:, None], torch.tensor([6, 6, 3]), torch.zeros((3, 0)), torch.zeros(3, dtype=torch.long))
+    weights = _moving_weights(batch, 4.0, dt)
+    assert weights.tolist() == [1.0, 4.0, 1.0] and _moving_weights(batch, 1.0, dt) is None
+    case = Case.of(batch.particle_type, [[0.0, 10.0], [0.0, 10.0]])  # the third point is kinematic: no loss
+    predicted, target = torch.zeros((3, 2)), torch.tensor([[1.0, 0.0], [2.0, 0.0], [5.0, 0.0]])
+    assert Simulator.loss(predicted, target, case, weights).item() == pytest.approx((1.0 + 4.0 * 4.0) / 5.0)
+    assert Simulator.loss(predicted, target, case).item() == pytest.approx((1.0 + 4.0) / 2.0)

@@ -50,6 +50,7 @@ CHECKPOINT = "checkpoint.pt"
 BEST = "best.pt"
 LOG = "log.jsonl"
 PUSHFORWARD_LIMITS = (0, 10)  # allowed --pushforward: the most rollout steps before a training step
+MOVING_SPEED = 0.25  # m/s: a point faster than this over its target step is moving (0.0094 m per 1-frame step)
 
 
 @dataclass
@@ -64,6 +65,7 @@ class TrainConfig:
     noise: float = 0.3  # velocity noise std as a fraction of the data's velocity std (m per step / m per step)
     rest_windows: bool = True  # also train on windows that start before frame 0 (a scene at rest)
     static_tail: int | None = None  # frames kept after a simulation's flow stops (None: all)
+    moving_weight: float = 1.0  # loss weight of a point moving faster than MOVING_SPEED against 1 for one that does not
     seed: int = 0
     device: str = "auto"  # auto, cpu, cuda, cuda:1, ...
     resume: bool = False
@@ -250,11 +252,22 @@ def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> to
     noisy, target = simulator.training_inputs(window, batch.future[:, -1], case, noise_gen)
     with autocast:  # through `model`, the DDP wrapper under torchrun, so gradients synchronise
         predicted = model(noisy, batch.particle_type, batch.material, case.bounds, batch.graph, cfg.checkpoint_layers)
-    loss = simulator.loss(predicted, target, case)
+    loss = simulator.loss(predicted, target, case, _moving_weights(batch, cfg.moving_weight, data.frame_dt * data.stride))
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     optimizer.step()
     return loss
+
+
+def _moving_weights(batch, moving_weight: float, step_dt: float) -> torch.Tensor | None:
+    """[N] loss weights: moving_weight for the points whose true target step (step_dt s long)
+    is faster than MOVING_SPEED, 1 for the others (None when moving_weight is 1: every point
+    counts the same)."""
+    if moving_weight == 1.0:
+        return None
+    before = batch.future[:, -2] if batch.unroll else batch.window[:, -1]  # the true frame before the target
+    moving = (batch.future[:, -1] - before).norm(dim=1) > MOVING_SPEED * step_dt  # m per step
+    return torch.where(moving, moving_weight, 1.0)
 
 
 def unrolled_steps(seed: int, step: int, pushforward: int) -> int:

@@ -35,6 +35,7 @@ def train(
     pushforward: int = typer.Option(0, "--pushforward", help="Pushforward training, N = 0-10: each step rolls the model out n steps without gradient, n uniform in 0..N per step, and trains on the window it made (0: one-step training)."),
     noise: float = typer.Option(0.3, "--noise", help="Velocity noise std of the inputs, as a fraction of the data's velocity std (mean of x and y, m per step); docs/training.md gives the pilots behind the default."),
     rest_windows: bool = typer.Option(True, "--rest-windows/--no-rest-windows", help="Also train on windows that start before frame 0 (the scene at rest, where every rollout starts)."),
+    moving_weight: float = typer.Option(1.0, "--moving-weight", help="Loss weight of a point moving faster than 0.25 m/s over its target step, against 1 for a slower one (1: every point the same)."),
     static_tail: int = typer.Option(None, "--static-tail", help="Train only up to this many frames after a simulation's flow stops (soil slower than 0.05 m/s); default: every frame."),
     latent: int = typer.Option(128, "--latent", help="Latent size of nodes and edges."),
     hidden: int = typer.Option(128, "--hidden", help="Units of each hidden MLP layer."),
@@ -67,6 +68,7 @@ def train(
         check_range(name, value, lo, hi)
     check_range("--noise", noise, 0.0, MAX_NOISE, " velocity std")
     check_range("--static-tail", static_tail, 0, MAX_STATIC_TAIL, " frames")
+    check_range("--moving-weight", moving_weight, 1.0, 1000.0)
     check_range("--lr-decay-steps", lr_decay_steps, 1.0, 1e12)
     check_range("--max-hours", max_hours, 0.0, 1000.0, " h")
     check_range("--radius", radius, 0.1, 1000.0, " m")
@@ -79,7 +81,7 @@ def train(
         claim(folder)
     cfg = TrainConfig(
         data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise=noise,
-        rest_windows=rest_windows, static_tail=static_tail,
+        rest_windows=rest_windows, static_tail=static_tail, moving_weight=moving_weight,
         seed=seed, device=device, resume=resume, init=init,
         network=NetworkConfig(latent=latent, hidden=hidden, message_passing_steps=message_passing),
         save_every=save_every, log_every=log_every, valid_every=valid_every,

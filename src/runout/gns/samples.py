@@ -67,6 +67,7 @@ class Simulations:
             (torch.zeros((len(t), 0)) if m is None else torch.from_numpy(m)).to(device) for _, t, m in sims
         ]
         self.rest_windows = rest_windows
+        self.frame_dt = frame_dt  # s between the dataset's frames
         self.static_tail = static_tail
         self.last_moving = [_last_moving_frame(p, t, STILL_SPEED * frame_dt) for p, t in zip(self.positions, self.particle_type)]
         self._index_windows(1)

@@ -226,10 +226,12 @@ class Simulator(nn.Module):
         return noisy, self.normalise_acceleration(corrected_target(noisy, next_position, noise))
 
     @staticmethod
-    def loss(predicted: torch.Tensor, target: torch.Tensor, case: Case) -> torch.Tensor:
-        """Mean squared error of the normalised accelerations over the moving points."""
+    def loss(predicted: torch.Tensor, target: torch.Tensor, case: Case, weights: torch.Tensor | None = None) -> torch.Tensor:
+        """Mean squared error of the normalised accelerations over the movable (not kinematic)
+        points, each weighted by `weights` [N] when given (a weighted mean)."""
         error = (predicted.float() - target).square().sum(dim=1)
-        return (error * case.movable).sum() / case.movable.sum().clamp(min=1)
+        w = case.movable.to(error.dtype) if weights is None else case.movable * weights
+        return (error * w).sum() / w.sum().clamp(min=1e-12)
 
 
 def random_walk_noise(window: torch.Tensor, noise_std: float, movable: torch.Tensor, generator: torch.Generator):
