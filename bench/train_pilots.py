@@ -48,6 +48,14 @@ PRESETS: dict[str, list[str]] = {
        for n in ("0.1", "0.3", "0.6") for k in ("2", "4")},
     **{f"r-noise{n}-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--pushforward", k]
        for n in ("0.1", "0.3", "0.6") for k in ("1", "2")},
+    **{f"r-noise{n}-mw{w}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--moving-weight", w]
+       for n in ("0.1", "0.3", "0.6") for w in ("4",)},
+    # from a recipe pilot's checkpoint (--init PATH, a fresh Adam each): one setting changed
+    **{f"c-noise{n}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n] for n in ("0.1", "0.3", "0.6")},
+    **{f"c-noise{n}-mw4": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--moving-weight", "4"]
+       for n in ("0.1", "0.3", "0.6")},
+    **{f"c-noise{n}-stride2": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--frame-stride", "2"]
+       for n in ("0.1", "0.3", "0.6")},
 }
 
 

@@ -93,9 +93,9 @@ def test_a_bad_value_is_exit_2_before_any_work(tmp_path, capsys, option, value, 
 def test_a_diverging_rollout_is_exit_1_and_writes_nothing(tmp_path, capsys):
     ckpt = read_checkpoint(MODEL)
     first = next(k for k, v in ckpt["model"].items() if v.is_floating_point())
-    ckpt["model"][first] = torch.full_like(ckpt["model"][first], float("nan"))
-    torch.save(ckpt, tmp_path / "nan.pt")
-    code, err = run(["rollout", "--model", tmp_path / "nan.pt", DAM, "--out", tmp_path / "o", "--frames", "12",
+    ckpt["model"][first] = torch.full_like(ckpt["model"][first], 1e30)  # finite weights, infinite predictions
+    torch.save(ckpt, tmp_path / "huge.pt")
+    code, err = run(["rollout", "--model", tmp_path / "huge.pt", DAM, "--out", tmp_path / "o", "--frames", "12",
                      "--no-animation"], capsys)
     assert code == 1 and "non-finite positions" in err and one_sentence(err)
     assert not (tmp_path / "o" / "trajectory.npz").exists()

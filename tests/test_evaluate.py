@@ -237,7 +237,7 @@ def test_report_names_the_model_and_links_existing_figures(studies, tmp_path):
 @pytest.mark.parametrize("args, message", [
     (["columns", "--aspects", "3"], "aspect ratio 3 has no example column; choose from 0.5, 1, 2."),
     (["columns", "--phis", "ten"], "--phis 'ten' must be numbers separated by commas, e.g. 0.5,1,2."),
-    (["columns", "--scale", "0"], "--scale 0 must be in (0, 1]."),
+    (["columns", "--scale", "0"], "--scale = 0 is outside the allowed range (0, 1]."),
     (["columns", "--phis", "75"], "<scene>: materials.soil.friction_angle = 75 is outside the allowed range [0, 60] degrees."),
     (["slope", "--frames", "3"], "--frames 3 must be at least 8 (6 input frames and a rollout)."),
 ])

@@ -202,7 +202,7 @@ def test_an_inverse_at_stride_two_observes_only_frames_the_model_predicts(tmp_pa
     torch.manual_seed(0)
     stats = Normalisation((0.0, 0.0), (2e-2, 2e-2), (0.0, 0.0), (2e-3, 2e-3), 0.0)
     simulator = Simulator(FeatureSchema(frame_stride=2), stats, 5.0, NetworkConfig(16, 16, 1, 2)).eval()
-    write_target(tmp_path, simulator, steps=10)  # frames 0-15 (a stand-in for an MPM run)
+    write_target(tmp_path, simulator, steps=15)  # frames 0-15 (a stand-in for an MPM run)
     parameters = "[parameters.left]\nphi = { initial = 25.0, lower = 10.0, upper = 40.0 }"
     odd = load_inverse_spec(write_spec(tmp_path, parameters, "frames = [13]", name="odd.toml"))
     with pytest.raises(InputError, match="observed frame 13 is not one the model predicts"):
@@ -210,7 +210,7 @@ def test_an_inverse_at_stride_two_observes_only_frames_the_model_predicts(tmp_pa
     spec = load_inverse_spec(write_spec(tmp_path, parameters, name="final.toml"))
     observation = load_observation(spec, stride=2)
     assert observation.frames == (14,) and observation.model_frames == (7,)  # "final": the last even frame
-    assert observation.model_steps == 2  # rollout frames 6 and 7 after the window 0-5 (frames 0-10)
+    assert observation.model_steps == 7  # from rest at frame 0, step j reaches frame 2j
     problem = inverse_problem(spec, observation, simulator)
     assert problem.forward(problem.features(torch.tensor([25.0], dtype=torch.float64))).shape == (1, observation.positions.shape[1], 2)
     with pytest.raises(InputError, match="frame stride 1"):

@@ -24,8 +24,10 @@ CONFIG = GenerateConfig(stage="finetune", count=12, seed=3, batch=4, frames=8, c
 
 
 class Ballistic:
-    """Stand-in MPM: soil points fly from their initial velocity under gravity, clamped to
-    the domain; ground points stay. Counts the scenes it is asked to run."""
+    """Stand-in MPM: soil points fly from their initial velocity under gravity and a light
+    sideways pull (so both velocity components spread, as in any flow, and the metadata's
+    std are above zero), clamped to the domain; ground points stay. Counts the scenes it is
+    asked to run."""
 
     def __init__(self, fail_after_batches: int | None = None):
         self.scenes_run: list[str] = []
@@ -41,7 +43,7 @@ class Ballistic:
             self.scenes_run.append(s.name)
             p = fill_points(s)
             t = np.arange(s.time.frames)[:, None, None] * s.time.frame_dt
-            x = p.position[None] + p.velocity[None] * t + 0.5 * np.array([0.0, -9.81]) * t**2
+            x = p.position[None] + p.velocity[None] * t + 0.5 * np.array([1.0, -9.81]) * t**2
             x[:, p.fixed] = p.position[p.fixed]
             x = np.clip(x, 0.0, [s.domain.width, s.domain.height])
             out.append(trajectory_for_scene(s, x, p.particle_type, p.material_id))

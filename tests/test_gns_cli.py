@@ -110,5 +110,5 @@ def test_a_recorded_spacing_outside_its_range_is_one_sentence(tmp_path):
     from runout.gns.checkpoint import load_simulator
 
     path = spaced_model(tmp_path / "m.pt", spacing=-1.0)
-    with pytest.raises(InputError, match=r"data_ranges.point_spacing_m = -1.0 is outside the allowed range \(0, 1000\] m."):
+    with pytest.raises(InputError, match=r"data_ranges.point_spacing_m = -1 is outside the allowed range \(0, 1000\] m."):
         load_simulator(path)

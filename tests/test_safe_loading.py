@@ -154,8 +154,8 @@ def test_rollout_with_a_malicious_checkpoint_exits_2_and_runs_nothing(tmp_path, 
 @pytest.mark.parametrize(
     "change, words",
     [
-        ({"radius": -5.0}, "radius = -5.0 is outside the allowed range (0, 1000] m"),
-        ({"radius": "far"}, "radius = 'far' is outside"),
+        ({"radius": -5.0}, "radius = -5 is outside the allowed range (0, 1000] m"),
+        ({"radius": "far"}, "radius = 'far' must be a finite number in (0, 1000] m"),
         ({"network": {"latent": 0}}, "network.latent = 0 is outside the allowed range [1, 1024]"),
         ({"network": {"latent": 32, "width": 3}}, "unknown key 'width' in the checkpoint's network"),
         ({"schema": {"history": 1}}, "schema.history = 1 is outside"),

@@ -13,12 +13,15 @@ from pathlib import Path
 
 import numpy as np
 
+from runout import checks
 from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
+from runout.gns.schema import FeatureSchema
 from runout.simfiles import Simulation, iter_simulations, read_metadata, read_simulations
 from runout.trajectory import Trajectory, trajectory_from_features
 
 SPLITS = ("train", "valid", "test")
+NEW_MODEL_TYPES = FeatureSchema.particle_types  # rows of the type embedding `runout train` gives a new model
 
 
 def load_split_trajectory(dataset: str | Path, split: str = "test", index: int = 0) -> Trajectory:
@@ -60,7 +63,7 @@ def summarize(path: str | Path) -> dict:
     file is malformed or the splits disagree on the number of material features."""
     path = Path(path)
     if path.is_file():
-        return {"splits": {path.stem: _summarize_split(path)}}
+        return {"splits": {path.stem: _summarize_split(path)}, "checked": _checked(None, path)}
     if not path.is_dir():
         raise InputError(f"{path}: no such dataset directory or file.")
     files = {name: path / f"{name}.npz" for name in SPLITS if (path / f"{name}.npz").is_file()}
@@ -78,11 +81,23 @@ def summarize(path: str | Path) -> dict:
                 f"{path}: {name} has {w} material features but {first} has {widths[first]}; "
                 "every split must use the same material features."
             )
-    return {"metadata": meta, "splits": splits}
+    return {"metadata": meta, "splits": splits, "checked": _checked(meta, path / "metadata.json")}
+
+
+def _checked(meta: dict | None, source: Path) -> list[str]:
+    """What summarize checked, as `runout inspect` reports it."""
+    lines = ["every simulation: positions [T >= 7, N, 2] finite, particle_type [N], material features [N, 1 or 2] "
+             f"finite, particle types within [0, {NEW_MODEL_TYPES - 1}], the {NEW_MODEL_TYPES} types a new model embeds"]
+    if meta is not None:
+        lo, hi, _ = checks.radius_range(meta, source)
+        lines.append(f"metadata.json: dim 2, bounds increasing, dt in (0, {checks.MAX_FRAME_DT:g}] s, statistics finite "
+                     f"with std > 0, connectivity radius {meta['default_connectivity_radius']:g} m within "
+                     f"{checks.span(lo, hi, ' m', lo_open=lo == 0.0)}, material feature names")
+    return lines
 
 
 def _summarize_split(path: Path) -> dict:
-    frames, points, kinematic = [], [], 0
+    frames, points, kinematic, types = [], [], 0, []
     lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
     f_lo = f_hi = None
     width = 0
@@ -90,6 +105,7 @@ def _summarize_split(path: Path) -> dict:
         frames.append(positions.shape[0])
         points.append(positions.shape[1])
         kinematic += int((ptype == PARTICLE_TYPE_KINEMATIC).sum())
+        types.append(np.unique(ptype))
         lo = np.minimum(lo, positions.min(axis=(0, 1)))
         hi = np.maximum(hi, positions.max(axis=(0, 1)))
         width = 0 if material is None else material.shape[1]
@@ -98,6 +114,7 @@ def _summarize_split(path: Path) -> dict:
             f_hi = material.max(axis=0) if f_hi is None else np.maximum(f_hi, material.max(axis=0))
     if not frames:
         raise InputError(f"{path}: holds no simulations.")
+    checks.particle_types(types, NEW_MODEL_TYPES, path, "a new model")
     return {
         "simulations": len(frames),
         "frames": [min(frames), max(frames)],
@@ -106,6 +123,7 @@ def _summarize_split(path: Path) -> dict:
         "kinematic_points": kinematic,
         "position_range": np.stack([lo, hi], axis=1).tolist(),  # [[x_lo, x_hi], [y_lo, y_hi]] m
         "material_width": width,
+        "particle_types": sorted(set(np.concatenate(types).tolist())),
         "material_range": None if f_lo is None else np.stack([f_lo, f_hi], axis=1).tolist(),
     }
 
@@ -119,7 +137,7 @@ def format_summary(path: str | Path, summary: dict) -> str:
         lines.append(
             f"  {name}: {s['simulations']} simulations, frames {s['frames'][0]}-{s['frames'][1]}, "
             f"points {s['points'][0]}-{s['points'][1]} ({s['kinematic_points']} of {s['points_total']} kinematic), "
-            f"x {x0:.1f}..{x1:.1f} m, y {y0:.1f}..{y1:.1f} m"
+            f"x {x0:.1f}..{x1:.1f} m, y {y0:.1f}..{y1:.1f} m, particle types {s['particle_types']}"
         )
         if s["material_range"] is not None:
             ranges = ", ".join(f"{lo:.3f}..{hi:.3f}" for lo, hi in s["material_range"])
@@ -135,4 +153,5 @@ def format_summary(path: str | Path, summary: dict) -> str:
                      f"sequence length {meta['sequence_length']}")
         for key in ("vel_mean", "vel_std", "acc_mean", "acc_std"):
             lines.append(f"  {key}: [{', '.join(f'{v:.4e}' for v in meta[key])}] (per frame)")
+    lines += [f"  checked: {line}" for line in summary["checked"]]
     return "\n".join(lines)

@@ -27,12 +27,14 @@ import numpy as np
 from tqdm.auto import tqdm
 
 import runout
+from runout import checks
 from runout.dataset import SPLITS
 from runout.errors import InputError, RunFailed
 from runout.families import BLOCK_SIDE, BLOCK_SPEED, DOMAIN_HEIGHT, STAGES, family_sequence, sample_for_index, vertex_ranges
 from runout.gns.schema import MATERIAL_FEATURE_NAMES, RADIUS_PER_SPACING
 from runout.scene import MAX_FRAMES, Scene, TimeSpec, save_scene
-from runout.simfiles import Moments, Simulation, write_metadata, write_simulations
+from runout.npz import SafeNpz, numeric
+from runout.simfiles import Moments, Simulation, check_simulation, write_metadata, write_simulations
 from runout.trajectory import Trajectory
 
 MIN_COUNT = 10  # so that the valid and test splits (k mod 10 = 8, 9) are never empty
@@ -128,6 +130,7 @@ def generate(
     families = family_sequence(STAGES[config.stage], config.count)
     mine = [j for j in range(config.n_batches) if j % shard[1] == shard[0]]
     todo = [j for j in mine if not _part_path(out, j).is_file()]
+    _check_parts(out, config, [j for j in mine if j not in todo])
     done = sum(len(config.batch_scenes(j)) for j in mine if j not in todo)
     total = sum(len(config.batch_scenes(j)) for j in mine)
     desc = f"{config.stage} {shard[0]}/{shard[1]}" if shard[1] > 1 else config.stage
@@ -178,12 +181,27 @@ def _claim(out: Path, config: GenerateConfig) -> None:
 
 
 def _read_config(directory: Path) -> GenerateConfig:
+    """The GenerateConfig of directory/generate.json, every field typed and in range."""
     path = directory / "generate.json"
     if not path.is_file():
         raise InputError(f"{directory}: no generate.json; not a directory made by `runout generate`.")
-    data = json.loads(path.read_text())
+    data = checks.json_table(path, "generate.json")
     data.pop("code_version", None)
-    return GenerateConfig(**data)
+    kinds = {"stage": str, "count": int, "seed": int, "batch": int, "frames": int, "cell_size": (int, float)}
+    for key, kind in kinds.items():
+        value = data.get(key)
+        if isinstance(value, bool) or not isinstance(value, kind):
+            words = {str: "text", int: "a whole number"}.get(kind, "a number")
+            raise InputError(f"{path}: {key} = {checks.show(value)} must be {words}.")
+    unknown = sorted(set(data) - set(kinds))
+    if unknown:
+        raise InputError(f"{path}: unknown key '{unknown[0]}'; generate.json holds {', '.join(kinds)} and code_version.")
+    config = GenerateConfig(**data)
+    try:
+        config.check()
+    except InputError as exc:
+        raise InputError(f"{path}: {exc}") from None
+    return config
 
 
 def _describe(c: GenerateConfig) -> str:
@@ -273,7 +291,7 @@ def write_dataset(config: GenerateConfig, part_dirs: list[Path], out: Path) -> N
             "scene_families": families,
             "splits": splits,
             "devices": sorted(devices),
-            "code_version": json.loads((part_dirs[0] / "generate.json").read_text())["code_version"],
+            "code_version": checks.json_table(part_dirs[0] / "generate.json", "generate.json").get("code_version"),
         }
     )
     write_metadata(out / "metadata.json", meta)
@@ -295,13 +313,33 @@ def _find_parts(config: GenerateConfig, dirs: list[Path]) -> dict[int, Path]:
 
 
 def _split_simulations(config: GenerateConfig, parts: dict[int, Path], name: str, devices: set) -> Iterator[Simulation]:
-    """The simulations of one split in scene order, read lazily from the parts."""
+    """The simulations of one split in scene order, read lazily from the parts (through
+    runout.npz.SafeNpz, each checked as a dataset's simulations are)."""
     for j in range(config.n_batches):
-        with np.load(parts[j]) as part:
-            devices.add(str(part["device"]))
-            for k in part["scenes"]:
-                if split_of(int(k)) == name:
-                    yield part[f"positions_{k}"], part[f"particle_type_{k}"], part[f"material_{k}"]
+        with SafeNpz(parts[j]) as part:
+            scenes = _part_scenes(part, config, j)
+            devices.add(part.text("device"))
+            for k in scenes:
+                if split_of(k) == name:
+                    item = (part[f"positions_{k}"], part[f"particle_type_{k}"], part[f"material_{k}"])
+                    yield check_simulation(part.path, k, item)
+
+
+def _part_scenes(part: SafeNpz, config: GenerateConfig, j: int) -> list[int]:
+    """The scene indices a part file records, which must be batch j's."""
+    scenes = numeric(part["scenes"], "scenes", part.path).tolist()
+    expected = list(config.batch_scenes(j))
+    if scenes != expected:
+        raise InputError(f"{part.path}: scenes = {scenes} must be batch {j}'s scenes {expected}; "
+                         "remove the file and run the same command to redo the batch.")
+    return scenes
+
+
+def _check_parts(out: Path, config: GenerateConfig, batches: list[int]) -> None:
+    """The finished parts a resumed run keeps record the scenes of their batch."""
+    for j in batches:
+        with SafeNpz(_part_path(out, j)) as part:
+            _part_scenes(part, config, j)
 
 
 def _accumulate(sims: Iterator[Simulation], moments: Moments) -> Iterator[Simulation]:

@@ -88,6 +88,17 @@ class SafeNpz:
         except (zipfile.BadZipFile, OSError, ValueError, EOFError, pickle.UnpicklingError, KeyError) as exc:
             raise InputError(f"{self.path}: member '{key}' is corrupt or not an array ({exc}).") from None
 
+    def text(self, key: str) -> str:
+        """A member holding one string (numpy unicode, no pickle), e.g. the device of a part file."""
+        try:
+            with self._zip.open(f"{key}.npy") as f:
+                array = np.lib.format.read_array(f, allow_pickle=False)
+        except (zipfile.BadZipFile, OSError, ValueError, EOFError, KeyError) as exc:
+            raise InputError(f"{self.path}: member '{key}' is corrupt or not text ({exc}).") from None
+        if array.dtype.kind != "U" or array.ndim != 0:
+            raise InputError(f"{self.path}: member '{key}' has dtype {array.dtype} and shape {array.shape}; expected one string.")
+        return str(array)
+
     def _read(self, key: str) -> np.ndarray:
         name = f"{key}.npy"
         with self._zip.open(name) as f:
@@ -113,6 +124,22 @@ class SafeNpz:
 def _is_npy(path: Path) -> bool:
     with open(path, "rb") as f:
         return f.read(6) == b"\x93NUMPY"
+
+
+def read_npy(path: str | Path, what: str) -> np.ndarray:
+    """The numeric array of a .npy file, read without pickle; InputError naming the file when
+    it is missing, unreadable, an object array or not numeric."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such {what}.")
+    try:
+        array = np.load(path, allow_pickle=False)
+    except (OSError, ValueError, EOFError) as exc:
+        raise InputError(f"{path}: not a readable .npy array of numbers ({exc}); nothing in it was run.") from None
+    if not isinstance(array, np.ndarray) or array.dtype.kind not in NUMERIC_KINDS:
+        kind = f"dtype {array.dtype}" if isinstance(array, np.ndarray) else type(array).__name__
+        raise InputError(f"{path}: holds {kind}; expected a .npy array of numbers.")
+    return array
 
 
 def numeric(value, what: str, source: Path) -> np.ndarray:

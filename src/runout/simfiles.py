@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from runout import checks
 from runout.defaults import CELL_SIZE, FRAME_DT, POINTS_PER_CELL
 from runout.errors import InputError
 from runout.gns.schema import RADIUS_PER_SPACING
@@ -53,7 +54,7 @@ def iter_simulations(path: str | Path) -> Iterator[Simulation]:
     with SafeNpz(path) as archive:
         width = None
         for k, item in enumerate(_items(archive)):
-            sim = _check_simulation(path, k, item)
+            sim = check_simulation(path, k, item)
             w = _material_width(sim)
             if width is None:
                 width = w
@@ -106,7 +107,9 @@ def _simulation_order(key: str):
     return (0, int(tail), key) if tail.isdigit() else (1, 0, key)
 
 
-def _check_simulation(path: Path, k: int, item: tuple) -> Simulation:
+def check_simulation(path: Path, k: int, item: tuple) -> Simulation:
+    """Simulation k of `path` as float32 positions [T >= 7, N, 2], int64 types [N] and float32
+    material [N, width] or None, all finite; InputError naming what is malformed."""
     if len(item) not in (2, 3):
         raise InputError(
             f"{path}: simulation {k} has {len(item)} entries; expected (positions, particle_type[, material])."
@@ -250,21 +253,18 @@ def statistics(sources, radius: float | None = None, bounds=None, dt: float | No
 
 
 def read_metadata(path: str | Path, mode: str = "train") -> dict:
-    """Read metadata.json (flat, or split into "train"/"rollout"), checking required keys."""
+    """Read metadata.json (flat, or split into "train"/"rollout"), checking the required keys
+    and every value a GNS reads (runout.checks.dataset_metadata)."""
     path = Path(path)
     if path.is_dir():
         path = path / "metadata.json"
-    if not path.is_file():
-        raise InputError(f"{path}: no such metadata file.")
-    try:
-        meta = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise InputError(f"{path}: not valid JSON ({exc}).") from None
+    meta = checks.json_table(path, "metadata file")
     if mode in meta and isinstance(meta[mode], dict):
         meta = {**meta, **meta[mode]}
     missing = [k for k in REQUIRED_METADATA if k not in meta]
     if missing:
         raise InputError(f"{path}: missing required key '{missing[0]}' (needs {', '.join(REQUIRED_METADATA)}).")
+    checks.dataset_metadata(meta, path)
     return meta
 
 

@@ -32,11 +32,12 @@ import torch.distributed as dist
 from torch.nn.parallel import DistributedDataParallel
 from tqdm.auto import tqdm
 
+from runout import checks
 from runout.dataset import split_trajectories
 from runout.defaults import FRAME_DT
 from runout.errors import InputError, Interrupted
 from runout.gns.checkpoint import (
-    check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint, widen_material_features,
+    check_resumable, check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint, widen_material_features,
 )
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations
@@ -288,14 +289,37 @@ def _generators(seed: int, step: int, ctx: Context) -> tuple[torch.Generator, to
 
 
 def _build(cfg: TrainConfig, meta: dict, data: Simulations):
-    """The simulator to train, the resumed training state (or None) and the settings."""
-    out = Path(cfg.out)
+    """The simulator to train, the resumed training state (or None) and the settings, after
+    checking the options against each other and the data's particle types against the
+    model's type table."""
     _check_whole("--frame-stride", cfg.frame_stride, *SCHEMA_LIMITS["frame_stride"])
     _check_whole("--pushforward", cfg.pushforward, *PUSHFORWARD_LIMITS)
+    _check_conflicts(cfg)
+    simulator, state, cfg = _start(cfg, meta, data)
+    source = Path(cfg.out) / CHECKPOINT if cfg.resume else cfg.init
+    model = f"the model in {source}" if source else "a new model"
+    checks.particle_types([t.cpu().numpy() for t in data.particle_type], simulator.schema.particle_types, data.path, model)
+    return simulator, state, cfg
+
+
+def _check_conflicts(cfg: TrainConfig) -> None:
+    """InputError for options that would be ignored: --init or --radius with --resume, --radius with --init."""
+    if cfg.resume and cfg.init is not None:
+        raise InputError(f"--resume continues {Path(cfg.out) / CHECKPOINT} from its own weights and would ignore "
+                         f"--init {cfg.init}; give only one of them.")
+    if cfg.radius is not None and (cfg.resume or cfg.init is not None):
+        raise InputError(f"--radius {cfg.radius:g} m applies to new runs only, and --{'resume' if cfg.resume else 'init'} "
+                         "keeps the radius its checkpoint was trained with; leave --radius out.")
+
+
+def _start(cfg: TrainConfig, meta: dict, data: Simulations):
+    """The simulator, training state and settings of a resumed, fine-tuned or new run."""
+    out = Path(cfg.out)
     if cfg.resume:
         path = out / CHECKPOINT
         ckpt = read_checkpoint(path)
         simulator = simulator_from_checkpoint(ckpt, path)
+        check_resumable(ckpt, simulator, path, TrainConfig)
         if cfg.frame_stride not in (None, simulator.frame_stride):
             raise InputError(
                 f"{path} was trained at --frame-stride {simulator.frame_stride}, so it resumes only at that stride; "

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from runout import checks
 from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
 from runout.gns.schema import MATERIAL_FEATURE_NAMES, decode_material
@@ -141,7 +142,8 @@ def load_trajectory(path: str | Path) -> Trajectory:
         raise InputError(f"{npz}: no such trajectory file.")
     if not meta_path.is_file():
         raise InputError(f"{meta_path}: missing; a trajectory needs its metadata.json beside it.")
-    meta = json.loads(meta_path.read_text())
+    meta = checks.json_table(meta_path, "trajectory metadata file")
+    checks.trajectory_metadata(meta, meta_path)
     sims = read_simulations(npz)
     if len(sims) != 1:
         raise InputError(f"{npz}: holds {len(sims)} simulations; a trajectory file holds exactly one.")
@@ -150,16 +152,19 @@ def load_trajectory(path: str | Path) -> Trajectory:
         positions, ptype, feats, meta.get("dt", FRAME_DT), meta["bounds"], meta.get("name", npz.stem)
     )
     if "materials" in meta:
-        traj = _attach_material_table(traj, feats, meta["materials"])
+        traj = _attach_material_table(traj, feats, meta["materials"], meta_path)
     traj.info = meta.get("info", {})
     return traj
 
 
-def _attach_material_table(traj: Trajectory, feats, table: list[dict]) -> Trajectory:
+def _attach_material_table(traj: Trajectory, feats, table: list[dict], source: Path) -> Trajectory:
     """Map each point to the named material whose features match its feature row."""
-    mats = [Material(**{k: v for k, v in m.items()}) for m in table]
     width = np.asarray(feats).reshape(traj.n_points, -1).shape[1]
-    rows = np.array([m.features()[:width] for m in mats], dtype=np.float32)
+    try:
+        mats = [Material(**m) for m in table]
+        rows = np.array([m.features()[:width] for m in mats], dtype=np.float32).reshape(len(mats), width)
+    except (TypeError, ValueError) as exc:
+        raise InputError(f"{source}: the materials table does not describe materials ({exc}).") from None
     f = np.asarray(feats, dtype=np.float32).reshape(traj.n_points, -1)
     match = np.all(np.isclose(f[:, None, :], rows[None, :, :], atol=1e-6), axis=2)
     if not match.any(axis=1).all():

@@ -25,18 +25,15 @@ def compare(
     """Run the MPM and the GNS on SCENE at the model's resolution: runout errors of both fronts
     and of the farthest point, deposit overlap (IoU), position MSE and both wall times in
     metrics.json, the final frames side by side (MPM left, GNS right) and an animation."""
-    import torch
-
+    from runout import checks
     from runout.cli.gns_commands import check_range
     from runout.compare import run_compare
-    from runout.errors import InputError
     from runout.gns.schema import HISTORY
     from runout.mpm.cache import MpmCache
     from runout.scene.validation import MAX_FRAMES
 
     check_range("--frames", frames, HISTORY + 1, MAX_FRAMES)
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise InputError("--device cuda was asked for but no CUDA GPU is available; use --device cpu.")
+    checks.device(device)
     result = run_compare(
         scene, model, out, frames, device, MpmCache(cache), force, progress, log=typer.echo,
         warn=lambda line: typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW),

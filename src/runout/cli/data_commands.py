@@ -45,6 +45,7 @@ def generate(
 ) -> None:
     """Sample scenes, run them through the batched MPM and write train/valid/test.npz and
     metadata.json (GNS layout). A killed run resumes where it stopped."""
+    from runout import checks
     from runout.errors import Interrupted
     from runout.generate import GenerateConfig, generate as run, parse_shard, shard_from_env
     from runout.outputs import check_folder, claim
@@ -52,6 +53,7 @@ def generate(
     where = parse_shard(shard) if shard else shard_from_env(os.environ)
     if device == "cuda" and "LOCAL_RANK" in os.environ:
         device = f"cuda:{os.environ['LOCAL_RANK']}"
+    checks.device(device)
     config = GenerateConfig(stage, count, seed, batch, frames, cell_size)
     config.check()
     folder = check_folder(out, "generate", DATASET_FILES, mode="resume", force=force)

@@ -62,13 +62,18 @@ def _check_frames(frames: int | None) -> None:
         raise InputError(f"--frames {frames} must be at least 8 (6 input frames and a rollout).")
 
 
-def _engines(cache: Path, device: str, progress: bool):
-    import torch
+def _check_options(device: str, scale: float) -> None:
+    """--device and --scale of a study, before any file is read."""
+    from runout import checks
+    from runout.evaluate.scenes import check_scale
 
+    checks.device(device)
+    check_scale(scale)
+
+
+def _engines(cache: Path, device: str, progress: bool):
     from runout.evaluate import EngineRun, MpmCache
 
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise InputError("--device cuda was asked for but no CUDA GPU is available; use --device cpu.")
     return EngineRun(MpmCache(cache), device, progress, log=typer.echo)
 
 
@@ -85,6 +90,7 @@ def columns(
     from runout.evaluate import ColumnGrid, run_columns
 
     _check_frames(frames)
+    _check_options(device, scale)
     _claim_out(out, "columns", force)
     grid = ColumnGrid(parse_numbers(aspects, "--aspects"), parse_numbers(phis, "--phis"),
                       parse_numbers(cohesions, "--cohesions"), frames, scale, examples)
@@ -105,6 +111,7 @@ def slope(
     from runout.evaluate import run_slope
 
     _check_frames(frames)
+    _check_options(device, scale)
     _claim_out(out, "slope", force)
     s = run_slope(model, out, _engines(cache, device, progress), examples, frames, scale, rerun_mpm)
     typer.echo(f"runout error left {s['runout_left_m']['ape_percent']:.2f} %, right {s['runout_right_m']['ape_percent']:.2f} %; "
@@ -122,9 +129,16 @@ def diagnostics(
     frames: int = typer.Option(600, help="Frames of the run."),
 ) -> None:
     """Velocity-space and physical-space error diagnostics (paper §5.1.1) at frames 80, 200 and the last, against the model's training velocity distribution."""
+    from runout.cli.gns_commands import check_range
     from runout.evaluate import ColumnCase, run_diagnostics
+    from runout.evaluate.scenes import column_file
+    from runout.scene import MAX_STRENGTH
 
     _check_frames(frames)
+    _check_options(device, scale)
+    column_file(aspect)
+    check_range("--phi", phi, 0.0, 60.0, " degrees")
+    check_range("--c", c, 0.0, MAX_STRENGTH, " kPa")
     _claim_out(out, "diagnostics", force)
     s = run_diagnostics(model, out, _engines(cache, device, progress), ColumnCase(aspect, phi, c), frames, scale, examples)
     for f in s["frames"]:
@@ -146,6 +160,7 @@ def inverse(
     _check_frames(frames)
     if max_iterations is not None and max_iterations < 1:
         raise InputError(f"--max-iterations {max_iterations} must be a positive whole number.")
+    _check_options(device, scale)
     _claim_out(out, "inverse", force)
     s = run_inverse(model, out, _engines(cache, device, progress), examples, frames, scale, max_iterations, typer.echo)
     for p in s["parameters"]:
@@ -165,10 +180,12 @@ def sensitivity(
     split: str = typer.Option("test", help="Held-out split file in --data (test or valid)."),
 ) -> None:
     """Data-size study (paper §6): fine-tune subsets under a fixed step and a fixed epoch budget; median and 25th-75th percentile rollout MSE on held-out simulations."""
+    from runout import checks
     from runout.evaluate import SensitivityConfig, run_sensitivity
 
     if split not in ("test", "valid"):
         raise InputError(f"--split {split!r} must be test or valid.")
+    checks.device(device)
     cfg = SensitivityConfig(data, init, parse_sizes(sizes), steps, epochs, held_out, split, device=device, progress=progress)
     _claim_out(out, "sensitivity", force)
     s = run_sensitivity(cfg, out)

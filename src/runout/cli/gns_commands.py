@@ -52,13 +52,15 @@ def train(
 ) -> None:
     """Train the GNS on an MPM dataset (one process, or many under torchrun). Ctrl-C saves
     the checkpoint of the last whole step (exit 130); --resume continues exactly."""
+    from runout import checks
+    from runout.gns.checkpoint import MAX_STEPS
     from runout.gns.schema import SCHEMA_LIMITS
     from runout.gns.simulator import NETWORK_LIMITS, NetworkConfig
     from runout.outputs import check_folder, claim
     from runout.train import BEST, CHECKPOINT, LOG, PUSHFORWARD_LIMITS, TrainConfig, train as run_training
 
     for name, value, lo, hi in (
-        ("--steps", steps, 1, 1_000_000_000), ("--batch-size", batch_size, 1, 64),
+        ("--steps", steps, 1, MAX_STEPS), ("--batch-size", batch_size, 1, 64),
         ("--save-every", save_every, 1, 1_000_000_000), ("--log-every", log_every, 1, 1_000_000_000),
         ("--valid-every", valid_every, 0, 1_000_000_000), ("--valid-trajectories", valid_trajectories, 1, 10_000),
         ("--valid-frames", valid_frames, 0, MAX_ROLLOUT_FRAMES),
@@ -74,8 +76,8 @@ def train(
     check_range("--radius", radius, 0.1, 1000.0, " m")
     check_range("--frame-stride", frame_stride, *SCHEMA_LIMITS["frame_stride"])
     check_range("--pushforward", pushforward, *PUSHFORWARD_LIMITS)
-    if not 0 < lr <= 1:
-        raise InputError(f"--lr = {lr:g} is outside the allowed range (0, 1].")
+    check_range("--lr", lr, 0.0, 1.0, lo_open=True)
+    checks.device(device, auto=True)
     folder = check_folder(out, "train", (CHECKPOINT, BEST, LOG, "tensorboard"), mode="resume", force=force)
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun only the writing process prepares it
         claim(folder)
@@ -108,6 +110,7 @@ def rollout(
     force: bool = typer.Option(False, "--force", help="Replace another command's results in --out (removing, and naming, the files that command wrote and this run does not rewrite; files runout did not write stay)."),
 ) -> None:
     """Roll the GNS out from rest (the first frame held) until FRAMES or until the flow stops."""
+    from runout import checks
     from runout.gns.checkpoint import load_simulator
     from runout.gns.rollout import rollout_trajectory
     from runout.gns.run import ROLLOUT_FILES, initial_state, write_rollout_outputs
@@ -117,6 +120,7 @@ def rollout(
 
     check_range("--frames", frames, 0, MAX_ROLLOUT_FRAMES)
     check_range("--stop-speed", stop_speed, 0.0, MAX_STOP_SPEED, " m/s")
+    checks.device(device)
     writes = ROLLOUT_FILES + ((animation_name(),) if animation else ()) + (("vtk",) if vtk else ())
     folder = check_folder(out, "rollout", writes, force=force)
     simulator = load_simulator(model, device)
@@ -145,10 +149,13 @@ def rollout(
     typer.echo(json.dumps(metrics, indent=2))
 
 
-def check_range(option: str, value, lo, hi, unit: str = "") -> None:
-    """InputError unless lo <= value <= hi (None passes: the option was not given)."""
-    if value is not None and not lo <= value <= hi:
-        raise InputError(f"{option} = {value:g} is outside the allowed range [{lo:g}, {hi:g}]{unit}.")
+def check_range(option: str, value, lo, hi, unit: str = "", lo_open: bool = False) -> None:
+    """InputError unless value is a finite number in [lo, hi], or (lo, hi] when lo_open
+    (None passes: the option was not given)."""
+    from runout import checks
+
+    if value is not None:
+        checks.number(value, option, None, lo, hi, unit, lo_open=lo_open)
 
 
 def check_rollout_memory(points: int, frames: int, device: str) -> None:

@@ -27,14 +27,12 @@ def invert(
     with L-BFGS-B inside their bounds; writes history.csv, history.json, loss.png,
     parameters.png and deposit.png, and prints the answer with its bounds. The gns engine
     fills the scene at the model's point spacing (the target must be a run at that spacing)."""
-    import torch
-
-    from runout.errors import InputError, Interrupted, RunFailed
+    from runout import checks
+    from runout.errors import Interrupted, RunFailed
     from runout.gns.rollout import RolloutDiverged
     from runout.inverse import invert as run_inversion, summary_lines
 
-    if device.startswith("cuda") and not torch.cuda.is_available():
-        raise InputError("--device cuda was asked for but no CUDA GPU is available; use --device cpu.")
+    checks.device(device)
     try:
         result = run_inversion(
             spec, out, model=model, device=device, starts=starts, engine=engine, fd_step=fd_step,

@@ -14,6 +14,7 @@ import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from runout import checks
 from runout.errors import InputError
 from runout.gns.rollout import at_model_spacing
 from runout.scene import EXAMPLES, Scene, load_scene
@@ -35,10 +36,14 @@ def model_scene(examples: Path, name: str, simulator, log=None) -> Scene:
     return at_model_spacing(example_scene(examples, name), simulator, name, log)
 
 
+def check_scale(scale: float) -> None:
+    """InputError unless --scale is a finite number in (0, 1]."""
+    checks.number(scale, "--scale", None, 0.0, 1.0, lo_open=True)
+
+
 def scaled(scene: Scene, scale: float) -> Scene:
     """The scene with its domain (rounded up to whole cells) and polygons times `scale`."""
-    if not 0 < scale <= 1:
-        raise InputError(f"--scale {scale:g} must be in (0, 1].")
+    check_scale(scale)
     if scale == 1:
         return scene
     cell = scene.domain.cell_size

@@ -7,6 +7,7 @@ import json
 from collections.abc import Callable
 from pathlib import Path
 
+from runout import checks
 from runout.dataset import load_split_trajectory
 from runout.errors import InputError
 from runout.gns.checkpoint import check_schema
@@ -26,7 +27,8 @@ def initial_state(
 ) -> tuple[Trajectory, Trajectory | None, list[str]]:
     """(trajectory whose first frames start the rollout, ground truth or None, warnings).
     A scene file is filled at the model's point spacing (`log` gets the line saying so when
-    its own cells differ)."""
+    its own cells differ); a trajectory's or dataset's particle types must lie in the model's
+    type table (a scene's kinematic and soil types always do)."""
     if source.is_file():
         scene = at_model_spacing(load_scene(source), simulator, str(source), log)
         start = scene_at_rest(scene)
@@ -34,6 +36,7 @@ def initial_state(
         return start, None, _ignored_cohesion(scene, simulator)
     if (source / "trajectory.npz").is_file():
         truth = load_trajectory(source)
+        checks.particle_types([truth.particle_type], simulator.schema.particle_types, source / "trajectory.npz", "the model")
         return truth, truth, []
     if (source / f"{split}.npz").is_file():
         truth = _dataset_trajectory(source, split, index, simulator)
@@ -43,6 +46,7 @@ def initial_state(
 
 def _dataset_trajectory(folder: Path, split: str, index: int, simulator: Simulator) -> Trajectory:
     truth = load_split_trajectory(folder, split, index)
+    checks.particle_types([truth.particle_type], simulator.schema.particle_types, folder / f"{split}.npz", "the model", index)
     data_schema = simulator.schema.with_material_features(material_names_for_width(truth.info.pop("material_width")))
     check_schema(simulator, data_schema, "the model", folder / f"{split}.npz")
     return truth

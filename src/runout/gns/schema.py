@@ -21,16 +21,20 @@ from dataclasses import asdict, dataclass, fields
 import numpy as np
 import torch
 
+from runout.defaults import PARTICLE_TYPE_SOIL
+
 MATERIAL_FEATURE_NAMES = ("tan_phi", "c_over_100kPa")  # the order of encode_material
 COHESION_SCALE = 100.0  # kPa: the second material feature is c / COHESION_SCALE
 HISTORY = 6  # positions per input window -> 5 velocities
 # Default connectivity radius as a multiple of the point spacing: 2.3 x 2 m = 4.6 m gives
 # ~16 neighbours per point at 4 points per 4 m cell.
 RADIUS_PER_SPACING = 2.3
-# Allowed [lowest, highest] of the numeric fields a checkpoint stores.
+MAX_RADIUS = 1000.0  # m: a connectivity radius beyond this would join a whole domain into one clique
+# Allowed [lowest, highest] of the numeric fields a checkpoint stores; every type table holds
+# the kinematic (3) and soil (6) types a scene fills.
 SCHEMA_LIMITS = {
-    "history": (2, 20), "dim": (2, 2), "wall_clip": (0.0, 100.0), "particle_types": (1, 64), "type_embedding": (1, 256),
-    "frame_stride": (1, 16),
+    "history": (2, 20), "dim": (2, 2), "wall_clip": (0.0, 100.0), "particle_types": (PARTICLE_TYPE_SOIL + 1, 64),
+    "type_embedding": (1, 256), "frame_stride": (1, 16),
 }
 
 

@@ -10,7 +10,7 @@ from matplotlib.ticker import MaxNLocator
 
 from runout.errors import InputError
 from runout.inverse.history import History
-from runout.inverse.optimise import StartResult, deposit_path
+from runout.inverse.optimise import StartResult, read_deposit
 
 
 def default_iterations(available: list[int]) -> list[int]:
@@ -85,7 +85,7 @@ def draw_deposits(
     lo, hi = target[moving].min(axis=0), target[moving].max(axis=0)
     for ax, it in zip(axes[:, 0], iterations):
         record = by_iteration[it]
-        predicted = np.load(deposit_path(history.out_dir, record.evaluation))
+        predicted = read_deposit(history.out_dir, record.evaluation, len(target))
         ax.scatter(*target[moving].T, s=3, c="0.75", label="target")
         ax.scatter(*predicted[moving].T, s=1, c=material_id[moving], cmap="tab10", vmin=0, vmax=9, label="predicted")
         values = ", ".join(f"{p.name} = {v:.3g} {p.unit}" for p, v in zip(history.free, record.values))

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from runout import checks
 from runout.errors import InputError
 from runout.inverse.spec import FreeParameter
 
@@ -128,20 +129,25 @@ class History:
         return buffer.getvalue()
 
     def resume_from_disk(self) -> None:
-        """Load recorded evaluations from out_dir, after checking they belong to this run."""
+        """Load recorded evaluations from out_dir, after checking they belong to this run and
+        hold the numbers a replay returns (runout.checks)."""
         path = self.out_dir / HISTORY_JSON
         if not path.is_file():
             return
-        try:
-            data = json.loads(path.read_text())
-        except json.JSONDecodeError as exc:
-            raise InputError(f"{path}: unreadable history ({exc}); remove it to start afresh.") from None
+        data = checks.json_table(path, "history")
         if data.get("run") != asdict(self.info):
             raise InputError(
                 f"{path}: was written by a different spec, engine, model or starting point; "
                 "use another --out folder or remove it to start afresh."
             )
-        self.records = [Record(**r) for r in data["evaluations"]]
+        try:
+            self.records = [Record(**r) for r in data["evaluations"]]
+        except (TypeError, KeyError) as exc:
+            raise InputError(f"{path}: the recorded evaluations are malformed ({exc}); remove it to start afresh.") from None
+        for k, r in enumerate(self.records):
+            checks.number(r.loss, f"evaluations[{k}].loss", path, 0.0, unit=" m²")
+            for key in ("normalised", "gradient_normalised"):
+                checks.numbers(getattr(r, key), f"evaluations[{k}].{key}", path, len(self.free))
 
 
 def _write_atomic(path: Path, text: str) -> None:

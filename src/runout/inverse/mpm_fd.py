@@ -14,7 +14,7 @@ import time
 import numpy as np
 import torch
 
-from runout.errors import InputError
+from runout import checks
 from runout.inverse.memory import PeakMemory
 from runout.inverse.observation import Observation
 from runout.inverse.optimise import spans, to_physical
@@ -22,13 +22,20 @@ from runout.inverse.problem import Evaluation, weighted_mse
 from runout.inverse.spec import InverseSpec
 
 
+MAX_STEP = 0.5  # the largest --fd-step, as a fraction of each parameter's bounds
+
+
+def check_step(step: float) -> None:
+    """InputError unless --fd-step is a finite fraction in (0, MAX_STEP]."""
+    checks.number(step, "--fd-step", None, 0.0, MAX_STEP, lo_open=True, note="a fraction of each parameter's bounds")
+
+
 class MpmFiniteDifference:
     """Evaluator: physical values [P] -> Evaluation (loss and finite-difference gradient)."""
 
     def __init__(self, spec: InverseSpec, observation: Observation, step: float = 0.01,
                  device: str = "cpu", progress: bool = False, compile: bool = False):
-        if not 0.0 < step <= 0.5:
-            raise InputError(f"--fd-step = {step:g} must be in (0, 0.5], a fraction of each parameter's bounds.")
+        check_step(step)
         self.spec = spec
         self.free = spec.free
         self.frames = list(observation.frames)

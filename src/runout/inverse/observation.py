@@ -17,6 +17,7 @@ import numpy as np
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
 from runout.inverse.spec import InverseSpec, LossSpec
+from runout.npz import read_npy
 from runout.scene import fill_points
 from runout.trajectory import Trajectory, load_trajectory
 
@@ -138,12 +139,7 @@ def _steps(spec: InverseSpec, frames: tuple[int, ...]) -> int:
 
 def _observed_positions(spec: InverseSpec, n_points: int, scene_name: str):
     path = spec.target.positions
-    if not path.is_file():
-        raise InputError(f"{path}: no such observed-positions file.")
-    try:
-        positions = np.load(path, allow_pickle=False)
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: not a readable .npy array ({exc}).") from None
+    positions = read_npy(path, "observed-positions file")
     if positions.ndim == 2:
         positions = positions[None]
     frames = spec.target.frames

@@ -21,6 +21,7 @@ from runout.errors import InputError
 from runout.inverse.history import History, Record, RunInfo
 from runout.inverse.problem import Evaluation
 from runout.inverse.spec import FreeParameter, OptimiserSpec
+from runout.npz import read_npy
 
 Evaluator = Callable[[np.ndarray], Evaluation]
 Log = Callable[[str], None]
@@ -51,6 +52,19 @@ def spans(free: tuple[FreeParameter, ...]) -> np.ndarray:
 
 def deposit_path(out_dir: Path, evaluation: int) -> Path:
     return Path(out_dir) / DEPOSITS / f"eval_{evaluation:04d}.npy"
+
+
+def read_deposit(out_dir: Path, evaluation: int, points: int | None = None) -> np.ndarray:
+    """The [N, 2] deposit (m) a run recorded for `evaluation`, read without pickle and
+    checked: finite, and `points` rows when given."""
+    path = deposit_path(out_dir, evaluation)
+    deposit = read_npy(path, "deposit file of a recorded evaluation")
+    rows = "N" if points is None else points
+    if deposit.ndim != 2 or deposit.shape[1] != 2 or (points is not None and deposit.shape[0] != points):
+        raise InputError(f"{path}: holds an array of shape {deposit.shape}; expected ({rows}, 2) positions in m.")
+    if not np.isfinite(deposit).all():
+        raise InputError(f"{path}: the deposit holds NaN or infinite positions where only finite ones are allowed.")
+    return deposit
 
 
 class EvaluationsSpent(Exception):
@@ -98,6 +112,7 @@ class RecordedObjective:
                 f"{self.history.out_dir}: evaluation {k} of the recorded history was at another point; "
                 "the history does not belong to this run, so remove it or use another --out folder."
             )
+        read_deposit(self.history.out_dir, k)
         return record
 
     def _evaluate(self, k: int, u: np.ndarray) -> Record:

@@ -14,6 +14,7 @@ from runout.inverse.figures import (
 )
 from runout.inverse.history import RunInfo
 from runout.inverse.memory import PeakMemory
+from runout.inverse.mpm_fd import check_step
 from runout.inverse.observation import Observation, load_observation
 from runout.inverse.optimise import Log, StartResult, run_starts, spread
 from runout.inverse.spec import InverseSpec, load_inverse_spec
@@ -63,6 +64,7 @@ def invert(
         raise InputError(f"--engine {engine!r} must be one of {', '.join(ENGINES)}.")
     if not 1 <= starts <= MAX_STARTS:
         raise InputError(f"--starts {starts} is outside the allowed range [1, {MAX_STARTS}].")
+    check_step(fd_step)
     if compile and engine == "gns":
         raise InputError("--compile applies to the engines mpm-ad and mpm-fd, not to --engine gns.")
     spec = load_inverse_spec(spec_path)

@@ -14,7 +14,7 @@ from collections import defaultdict
 
 import torch
 
-from runout.errors import InputError
+from runout import checks
 from runout.mpm.batch import build_batch, run_batch, substeps_per_frame
 from runout.scene import Scene
 from runout.trajectory import Trajectory
@@ -35,9 +35,8 @@ def simulate(
     """Run every scene through the MPM; returns one Trajectory per scene, in order.
 
     dtype float64 (default) or float32; compile=True uses torch.compile for long runs."""
+    checks.device(str(device))
     device = torch.device(device)
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise InputError("--device cuda was asked for but no CUDA GPU is available; use --device cpu.")
     groups: dict[tuple, list[int]] = defaultdict(list)
     for k, s in enumerate(scenes):
         n = frames if frames is not None else s.time.frames

@@ -31,7 +31,7 @@ _TOP_KEYS = {"domain", "time", "materials", "regions", "name"}
 def check_keys(table, allowed: set[str], where: str, source) -> None:
     """InputError unless `table` is a table whose keys are all in `allowed` (scene and spec files)."""
     if not isinstance(table, dict):
-        raise InputError(f"{source}: [{where}] must be a table of keys.")
+        raise InputError(f"{source}: [{where}] is a {type(table).__name__}; it must be a table of keys.")
     unknown = sorted(set(table) - allowed)
     if unknown:
         raise InputError(
@@ -178,8 +178,8 @@ def load_scene(path: str | Path) -> Scene:
             data = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not a valid TOML/JSON scene file ({exc}).") from None
-    data.setdefault("name", path.stem)
-    return scene_from_dict(data, str(path))
+    check_keys(data, _TOP_KEYS, "top level", path)
+    return scene_from_dict({"name": path.stem, **data}, str(path))
 
 
 def scene_to_dict(scene: Scene) -> dict:
