@@ -1,13 +1,13 @@
-"""ParaView files of a trajectory: one VTK XML UnstructuredGrid (.vtu, ASCII) per frame and
-a .pvd collection that puts them on a time axis.
+"""ParaView files of a trajectory: one VTK XML UnstructuredGrid (.vtu) per frame and a .pvd
+collection that puts them on a time axis.
 
     write_vtk(trajectory, "out/run/vtk")   # frame_00000.vtu ... and trajectory.pvd
 
 Each point is a VTK_VERTEX cell at (x, y, 0) m with the point data material_id,
 particle_type (3 kinematic, 6 soil), phi (degrees), c (kPa), displacement from frame 0 (m)
 and velocity (m/s, the backward difference (x_t - x_{t-1}) / frame_dt; zero at frame 0).
-The format is written by this module alone (plain XML text), so no VTK library is needed;
-ASCII keeps the files readable and exact to 7 significant digits (float32).
+meshio writes the .vtu files, binary (float32, int32) and zlib-compressed; the .pvd is a few
+lines of XML that meshio does not write, so it is written here.
 """
 
 from __future__ import annotations
@@ -15,11 +15,11 @@ from __future__ import annotations
 from pathlib import Path
 from xml.sax.saxutils import quoteattr
 
+import meshio
 import numpy as np
 
 from runout.trajectory import Trajectory
 
-VTK_VERTEX = 1
 PVD_NAME = "trajectory.pvd"
 
 
@@ -43,35 +43,11 @@ def _xyz(xy: np.ndarray) -> np.ndarray:
     return np.column_stack([xy, np.zeros(len(xy))]).astype(np.float32)
 
 
-def _data_array(name: str | None, values: np.ndarray) -> str:
-    kind = {"i": "Int32", "u": "Int32", "f": "Float32"}[values.dtype.kind]
-    parts = values.reshape(len(values), -1)
-    fmt = "%d" if kind == "Int32" else "%.7g"
-    text = " ".join(fmt % v for v in parts.ravel().tolist())
-    label = "" if name is None else f" Name={quoteattr(name)}"
-    return (f'<DataArray type="{kind}"{label} NumberOfComponents="{parts.shape[1]}" format="ascii">'
-            f"{text}</DataArray>")
-
-
-def vtu_text(traj: Trajectory, frame: int) -> str:
-    """The .vtu document of one frame."""
-    n = traj.n_points
-    points = _xyz(traj.positions[frame])
-    point_data = "\n".join(_data_array(name, v) for name, v in frame_fields(traj, frame).items())
-    cells = "\n".join([
-        _data_array("connectivity", np.arange(n, dtype=np.int32)),
-        _data_array("offsets", np.arange(1, n + 1, dtype=np.int32)),
-        _data_array("types", np.full(n, VTK_VERTEX, dtype=np.int32)),
-    ])
-    return (
-        '<?xml version="1.0"?>\n'
-        '<VTKFile type="UnstructuredGrid" version="0.1" byte_order="LittleEndian">\n'
-        f'<UnstructuredGrid>\n<Piece NumberOfPoints="{n}" NumberOfCells="{n}">\n'
-        f"<Points>\n{_data_array(None, points)}\n</Points>\n"
-        f"<Cells>\n{cells}\n</Cells>\n"
-        f'<PointData Scalars="material_id" Vectors="velocity">\n{point_data}\n</PointData>\n'
-        "</Piece>\n</UnstructuredGrid>\n</VTKFile>\n"
-    )
+def frame_mesh(traj: Trajectory, frame: int) -> meshio.Mesh:
+    """One frame as a meshio mesh: a vertex cell per point, with its point data."""
+    vertices = np.arange(traj.n_points, dtype=np.int32)[:, None]
+    return meshio.Mesh(_xyz(traj.positions[frame]), [("vertex", vertices)],
+                       point_data=frame_fields(traj, frame))
 
 
 def write_vtk(traj: Trajectory, folder: str | Path, every: int = 1) -> Path:
@@ -82,7 +58,7 @@ def write_vtk(traj: Trajectory, folder: str | Path, every: int = 1) -> Path:
     entries = []
     for f in frames:
         name = f"frame_{f:05d}.vtu"
-        (folder / name).write_text(vtu_text(traj, f))
+        meshio.vtu.write(folder / name, frame_mesh(traj, f), binary=True, compression="zlib")
         entries.append(f'<DataSet timestep="{f * traj.frame_dt:.6g}" group="" part="0" file={quoteattr(name)}/>')
     pvd = (
         '<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
