@@ -20,7 +20,7 @@ import torch
 
 from runout.gns.graph import radius_graph
 from runout.gns.samples import TrainingBatch
-from runout.gns.schema import FeatureSchema
+from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.train import Context, TrainConfig, _train_step
 

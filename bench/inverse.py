@@ -25,13 +25,12 @@ import numpy as np
 import torch
 
 from runout.gns.checkpoint import load_simulator
-from runout.gns.schema import FeatureSchema
+from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.inverse import load_inverse_spec
 from runout.inverse.forward import inverse_problem
 from runout.inverse.mpm_fd import MpmFiniteDifference
 from runout.inverse.observation import Observation
-from runout.inverse.spec import INPUT_FRAMES
 from runout.scene import fill_points
 
 REPO = Path(__file__).resolve().parents[1]
@@ -49,8 +48,7 @@ def simulator_for(model: str | None, device: str) -> tuple[Simulator, str]:
 def dam_observation(spec, steps: int) -> Observation:
     """The dam at rest as the target: the loss value does not change the cost."""
     points = fill_points(spec.scene)
-    last = INPUT_FRAMES - 1 + steps
-    return Observation((last,), points.position[None].copy(), steps, points.position, points.particle_type,
+    return Observation((steps,), points.position[None].copy(), steps, points.position, points.particle_type,
                        points.material_id, None)
 
 
@@ -58,7 +56,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--model", default=None, help="GNS checkpoint (default: random full-size network)")
     ap.add_argument("--device", default="cpu")
-    ap.add_argument("--steps", type=int, default=None, help="rollout steps (default: the dam scene's frames - 6)")
+    ap.add_argument("--steps", type=int, default=None, help="frames rolled out from rest (default: the dam scene's frames - 1)")
     ap.add_argument("--repeats", type=int, default=2, help="timed evaluations after one warm-up")
     ap.add_argument("--threads", type=int, default=2)
     ap.add_argument("--no-checkpoint", action="store_true", help="keep every step's activations")
@@ -67,7 +65,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     spec = load_inverse_spec(SPEC)
-    steps = args.steps or spec.scene.time.frames - INPUT_FRAMES
+    steps = args.steps or spec.scene.time.frames - 1
     observation = dam_observation(spec, steps)
     values = np.array([p.initial for p in spec.free])
     if args.engine == "mpm-fd":

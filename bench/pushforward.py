@@ -19,7 +19,7 @@ import time
 import torch
 
 from gns import BOUNDS, RADIUS, STATS, LatticeData, lattice_window  # bench/gns.py, beside this script
-from runout.gns.schema import FeatureSchema
+from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Simulator
 from runout.train import Context, TrainConfig, _train_step, unrolled_steps
 

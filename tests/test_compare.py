@@ -123,10 +123,13 @@ def test_deposit_overlap_counts_cells_of_the_grid():
     assert deposit_iou(strip([[95.0, 96.0, 97.0]]), truth, 10.0) == 0.0
 
 
-@pytest.mark.parametrize("frames", ["3", "2000000"])
-def test_a_bad_frame_count_is_one_sentence_and_exit_2(tmp_path, capsys, frames):
+@pytest.mark.parametrize("frames, words", [
+    ("1", "--frames = 1 must be at least 2: frame 0 and the first frame the model predicts, 1 frame on."),
+    ("2000000", "--frames = 2000000 is outside the allowed range [1, 1e+06]."),
+])
+def test_a_bad_frame_count_is_one_sentence_and_exit_2(tmp_path, capsys, frames, words):
     save_scene(scene_from_dict(MOUND, "mound"), tmp_path / "mound.toml")
     code, err = run(["compare", tmp_path / "mound.toml", "--model", MODEL, "--out", tmp_path / "out", "--frames", frames], capsys)
     assert code == 2 and one_sentence(err)
-    assert f"--frames = {frames} is outside the allowed range [7, 1e+06]." in err
+    assert words in err
     assert not (tmp_path / "out").exists()

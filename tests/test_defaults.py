@@ -1,7 +1,7 @@
 """The shared defaults are the values the scene parser, the MPM and the GNS use."""
 
 from runout import defaults
-from runout.gns.schema import FeatureSchema, HISTORY, decode_material, encode_material
+from runout.contract import FeatureSchema, HISTORY, decode_material, encode_material
 from runout.mpm import batch, geostatic
 from runout.scene import scene_from_dict
 

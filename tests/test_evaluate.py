@@ -16,7 +16,7 @@ from runout.evaluate.diagnostics import sigma_distance
 from runout.evaluate.inverse_study import spec_text
 from runout.evaluate.scenes import EXAMPLES, example_scene
 from runout.gns.checkpoint import save_checkpoint
-from runout.gns.schema import FeatureSchema
+from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.inverse import load_inverse_spec
 from runout.metrics import (
@@ -215,7 +215,7 @@ def test_sensitivity_fine_tunes_each_subset_under_both_budgets(tmp_path):
     assert result.exit_code == 0, result.output
     s = json.loads((tmp_path / "out" / "sensitivity" / "summary.json").read_text())
     steps = {(r["budget"], r["size"]): r["steps"] for r in s["results"]}
-    assert steps == {("steps", 1): 2, ("steps", 2): 2, ("epochs", 1): 2, ("epochs", 2): 4}  # 4 windows per simulation, batch 2
+    assert steps == {("steps", 1): 2, ("steps", 2): 2, ("epochs", 1): 5, ("epochs", 2): 9}  # 9 windows per simulation (5 from rest), batch 2
     assert all(r["p25_mse_m2"] <= r["median_mse_m2"] <= r["p75_mse_m2"] for r in s["results"])
     assert (tmp_path / "out" / "sensitivity" / "rollout_mse.png").is_file()
 
@@ -239,7 +239,7 @@ def test_report_names_the_model_and_links_existing_figures(studies, tmp_path):
     (["columns", "--phis", "ten"], "--phis 'ten' must be numbers separated by commas, e.g. 0.5,1,2."),
     (["columns", "--scale", "0"], "--scale = 0 is outside the allowed range (0, 1]."),
     (["columns", "--phis", "75"], "<scene>: materials.soil.friction_angle = 75 is outside the allowed range [0, 60] degrees."),
-    (["slope", "--frames", "3"], "--frames 3 must be at least 8 (6 input frames and a rollout)."),
+    (["slope", "--frames", "1"], "--frames = 1 must be at least 2: frame 0 and the first frame the model predicts, 1 frame on."),
 ])
 def test_bad_study_input_is_one_sentence(tmp_path, args, message):
     model = tiny_model(tmp_path / "m.pt")

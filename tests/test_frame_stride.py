@@ -12,7 +12,7 @@ from runout.errors import InputError
 from runout.gns.checkpoint import load_simulator, read_checkpoint, save_checkpoint
 from runout.gns.rollout import rollout_trajectory, scene_at_rest
 from runout.gns.samples import Simulations
-from runout.gns.schema import FeatureSchema
+from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.inverse import load_inverse_spec, load_observation
 from runout.inverse.forward import inverse_problem

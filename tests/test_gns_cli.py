@@ -66,7 +66,7 @@ def test_a_missing_model_is_an_input_error(tmp_path):
 def spaced_model(path, radius=12.0, spacing=4.0):
     """An untrained checkpoint whose data_ranges record `spacing` (m) and whose radius is another (m)."""
     from runout.gns.checkpoint import save_checkpoint
-    from runout.gns.schema import FeatureSchema
+    from runout.contract import FeatureSchema
     from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 
     torch.manual_seed(0)

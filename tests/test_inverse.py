@@ -19,7 +19,7 @@ import torch
 from runout.errors import InputError
 from runout.gns.checkpoint import save_checkpoint
 from runout.gns.rollout import rollout
-from runout.gns.schema import FeatureSchema
+from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.inverse import Evaluation, invert, load_inverse_spec, load_observation, minimise, starting_points
 from runout.inverse.forward import inverse_problem

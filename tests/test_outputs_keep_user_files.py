@@ -9,7 +9,7 @@ import shutil
 from pathlib import Path
 
 import runout.validate
-from runout.mpm.run import MPM_FILES
+from runout.mpm_run import MPM_FILES
 from runout.outputs import MARKER, check_folder, claim
 from runout.validate import CaseResult
 from test_cli_exits import DAM, run

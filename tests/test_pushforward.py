@@ -11,7 +11,7 @@ import torch.multiprocessing as mp
 from runout.errors import InputError
 from runout.gns.checkpoint import read_checkpoint
 from runout.gns.samples import Simulations
-from runout.gns.schema import FeatureSchema
+from runout.contract import FeatureSchema
 from runout.gns.simulator import Case, Normalisation, Simulator
 from runout.simfiles import read_metadata, read_simulations
 from runout.train import Context, _generators, _train_step, train, unrolled_steps
@@ -168,7 +168,7 @@ def test_data_too_short_for_the_pushforward_steps_is_one_sentence(tmp_path):
 def test_the_library_refuses_a_pushforward_outside_its_range(tmp_path):
     data = write_dataset(tmp_path / "data")
     for bad in (-1, 11, 1.5):
-        with pytest.raises(InputError, match=r"--pushforward = .* is outside the allowed range \[0, 10\] \(a whole number\)\."):
+        with pytest.raises(InputError, match=r"--pushforward = .* (is outside the allowed range|must be a whole number in) \[0, 10\]\."):
             train(config(data, tmp_path / "run", steps=1, pushforward=bad))
 
 

@@ -14,11 +14,9 @@ from collections.abc import Iterable
 from pathlib import Path
 
 import numpy as np
-import torch
 
-from runout.defaults import POINTS_PER_CELL
+from runout.contract import MAX_RADIUS, FeatureSchema, spacing_for_cells
 from runout.errors import InputError
-from runout.gns.schema import MAX_RADIUS, FeatureSchema
 from runout.scene.validation import MAX_DOMAIN, MAX_FRAMES
 
 MAX_FRAME_DT = 10.0  # s between frames, as a scene's time.frame_dt allows
@@ -109,7 +107,7 @@ def radius_range(meta: dict, source) -> tuple[float, float, str]:
     lo, hi, note = 0.0, min(MAX_RADIUS, side / 2), f"at most half the domain's longer side of {side:g} m"
     if "cell_size" in meta:
         cell = number(meta["cell_size"], "cell_size", source, 0.0, MAX_DOMAIN, " m", lo_open=True)
-        spacing = cell / POINTS_PER_CELL
+        spacing = spacing_for_cells(cell)
         lo, hi = spacing, min(hi, MAX_RADIUS_SPACINGS * spacing)
         note = f"1 to {MAX_RADIUS_SPACINGS:g} point spacings of {spacing:g} m, and {note}"
     return lo, hi, note
@@ -150,6 +148,8 @@ def device(value: str, option: str = "--device", auto: bool = False) -> None:
     cuda:K for a GPU K it has (and auto, when `auto`)."""
     if auto and value == "auto":
         return
+    import torch  # here, not at the top: the file layers that use these checks stay torch-free
+
     try:
         dev = torch.device(value)
     except (RuntimeError, TypeError, ValueError):

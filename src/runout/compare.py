@@ -30,6 +30,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from runout.contract import FeatureSchema
 from runout.errors import InputError, RunFailed
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import at_model_spacing, rollout_trajectory, scene_at_rest
@@ -63,7 +64,7 @@ def run_compare(
     folder = check_folder(out, "compare", COMPARE_FILES + (animation_name(),), force=force)
     simulator = load_simulator(model, device)
     scene = at_model_spacing(load_scene(scene_path), simulator, str(scene_path), log)
-    scene = _with_frames(scene, frames, simulator.window_frames, scene_path)
+    scene = _with_frames(scene, frames, simulator.schema, scene_path)
     start = scene_at_rest(scene)
     if not start.soil.any():
         raise InputError(f"{scene_path}: every region is fixed, so there is no soil whose runout could be compared.")
@@ -89,12 +90,11 @@ def run_compare(
     return Comparison(metrics, files)
 
 
-def _with_frames(scene: Scene, frames: int | None, window: int, source: Path) -> Scene:
-    """The scene with `frames` frames (None: its own), more than the model's window spans."""
+def _with_frames(scene: Scene, frames: int | None, schema: FeatureSchema, source: Path) -> Scene:
+    """The scene with `frames` frames (None: its own), as many as a rollout from rest needs
+    to be compared (FeatureSchema.check_frames)."""
     scene = scene.with_frames(frames) if frames is not None else scene
-    if scene.time.frames <= window:
-        where = "--frames" if frames is not None else f"{source}: time.frames"
-        raise InputError(f"{where} = {scene.time.frames} must exceed the model's {window} input frames.")
+    schema.check_frames(scene.time.frames, "--frames" if frames is not None else f"{source}: time.frames")
     return scene
 
 

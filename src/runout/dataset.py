@@ -14,9 +14,9 @@ from pathlib import Path
 import numpy as np
 
 from runout import checks
+from runout.contract import FeatureSchema
 from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
-from runout.gns.schema import FeatureSchema
 from runout.simfiles import Simulation, iter_simulations, read_metadata, read_simulations
 from runout.trajectory import Trajectory, trajectory_from_features
 
@@ -26,8 +26,8 @@ NEW_MODEL_TYPES = FeatureSchema.particle_types  # rows of the type embedding `ru
 
 def load_split_trajectory(dataset: str | Path, split: str = "test", index: int = 0) -> Trajectory:
     """Simulation `index` of DATASET/SPLIT.npz as a Trajectory named SPLIT_INDEX, with the
-    frame dt (FRAME_DT when the metadata has none) and bounds of DATASET/metadata.json.
-    info["material_width"] is the number of material features the file holds (0 for none)."""
+    frame dt (FRAME_DT when the metadata has none) and bounds of DATASET/metadata.json; its
+    material_width is the number of material features the file holds (0 for none)."""
     dataset = Path(dataset)
     sims = read_simulations(dataset / f"{split}.npz")
     if not 0 <= index < len(sims):
@@ -49,9 +49,7 @@ def split_trajectories(dataset: str | Path, split: str = "test", limit: int | No
 
 def _trajectory(sim: Simulation, meta: dict, name: str) -> Trajectory:
     positions, ptype, material = sim
-    traj = trajectory_from_features(positions, ptype, material, meta.get("dt", FRAME_DT), meta["bounds"], name)
-    traj.info["material_width"] = 0 if material is None else material.shape[1]
-    return traj
+    return trajectory_from_features(positions, ptype, material, meta.get("dt", FRAME_DT), meta["bounds"], name)
 
 
 # ----------------------------------------------------------------------------- whole datasets

@@ -28,16 +28,18 @@ from tqdm.auto import tqdm
 
 import runout
 from runout import checks
+from runout.contract import MATERIAL_FEATURE_NAMES, FeatureSchema, radius_for_spacing, spacing_for_cells
 from runout.dataset import SPLITS
 from runout.errors import InputError, RunFailed
 from runout.families import BLOCK_SIDE, BLOCK_SPEED, DOMAIN_HEIGHT, STAGES, family_sequence, sample_for_index, vertex_ranges
-from runout.gns.schema import MATERIAL_FEATURE_NAMES, RADIUS_PER_SPACING
 from runout.scene import MAX_FRAMES, Scene, TimeSpec, save_scene
 from runout.npz import SafeNpz, numeric
 from runout.simfiles import Moments, Simulation, check_simulation, write_metadata, write_simulations
 from runout.trajectory import Trajectory
 
 MIN_COUNT = 10  # so that the valid and test splits (k mod 10 = 8, 9) are never empty
+# a default model's window and the frame after it, so a model trains on the data with or without rest windows
+MIN_FRAMES = FeatureSchema().window_frames + 1
 MAX_COUNT = 1_000_000
 MAX_BATCH = 1024
 
@@ -50,7 +52,7 @@ class GenerateConfig:
 
     stage: str
     count: int  # scenes
-    seed: int
+    seed: int = 0
     batch: int = 16  # scenes per MPM batch (and per part file)
     frames: int = 480  # output frames per scene, frame 0 included
     cell_size: float = 4.0  # m; the paper's 4 m, coarser only for quick tests
@@ -64,10 +66,11 @@ class GenerateConfig:
             raise InputError(f"count = {self.count} is outside the allowed range [{MIN_COUNT}, {MAX_COUNT}].")
         if not 1 <= self.batch <= MAX_BATCH:
             raise InputError(f"batch = {self.batch} is outside the allowed range [1, {MAX_BATCH}].")
-        if self.frames < 7:
-            raise InputError(f"frames = {self.frames} must be at least 7 (the GNS reads 6-frame windows).")
+        if self.frames < MIN_FRAMES:
+            raise InputError(f"frames = {self.frames} must be at least {MIN_FRAMES} (the GNS reads "
+                             f"{FeatureSchema().window_frames}-frame windows).")
         if self.frames > MAX_FRAMES:
-            raise InputError(f"frames = {self.frames} is outside the allowed range [7, {MAX_FRAMES}].")
+            raise InputError(f"frames = {self.frames} is outside the allowed range [{MIN_FRAMES}, {MAX_FRAMES}].")
         if not 1.0 <= self.cell_size <= 16.0:
             raise InputError(f"cell_size = {self.cell_size:g} m is outside the allowed range [1, 16] m.")
 
@@ -271,9 +274,9 @@ def write_dataset(config: GenerateConfig, part_dirs: list[Path], out: Path) -> N
         if name == "train":
             sims = _accumulate(sims, moments)
         write_simulations(out / f"{name}.npz", sims, compress=False)
-    spacing = config.cell_size / 2  # m, 2 x 2 points per cell
     meta = moments.metadata(
-        bounds=[[0.0, stage.width], [0.0, DOMAIN_HEIGHT]], radius=RADIUS_PER_SPACING * spacing, dt=TimeSpec().frame_dt
+        bounds=[[0.0, stage.width], [0.0, DOMAIN_HEIGHT]], radius=radius_for_spacing(spacing_for_cells(config.cell_size)),
+        dt=TimeSpec().frame_dt,
     )
     families = family_sequence(stage, config.count)
     meta.update(

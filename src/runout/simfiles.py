@@ -19,9 +19,9 @@ from pathlib import Path
 import numpy as np
 
 from runout import checks
-from runout.defaults import CELL_SIZE, FRAME_DT, POINTS_PER_CELL
+from runout.contract import radius_for_spacing, spacing_for_cells
+from runout.defaults import CELL_SIZE, FRAME_DT
 from runout.errors import InputError
-from runout.gns.schema import RADIUS_PER_SPACING
 from runout.npz import SafeNpz, numeric
 
 REQUIRED_METADATA = (
@@ -233,7 +233,7 @@ class Moments:
         return {
             "bounds": np.asarray(bounds, dtype=float).tolist(),
             "sequence_length": int(self.sequence_length),
-            "default_connectivity_radius": float(RADIUS_PER_SPACING * CELL_SIZE / POINTS_PER_CELL if radius is None else radius),
+            "default_connectivity_radius": float(radius_for_spacing(spacing_for_cells(CELL_SIZE)) if radius is None else radius),
             "dim": 2,
             "dt": float(FRAME_DT if dt is None else dt),
             "vel_mean": vel_mean.tolist(),

@@ -24,7 +24,7 @@ import signal
 import threading
 import time
 from contextlib import nullcontext
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 
 import torch
@@ -37,14 +37,16 @@ from runout.dataset import split_trajectories
 from runout.defaults import FRAME_DT
 from runout.errors import InputError, Interrupted
 from runout.gns.checkpoint import (
-    check_resumable, check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint, widen_material_features,
+    MAX_STEPS, check_resumable, check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint,
+    widen_material_features,
 )
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations
 from runout.gns.schema import SCHEMA_LIMITS, FeatureSchema
-from runout.gns.simulator import Case, NetworkConfig, Normalisation, Simulator
+from runout.gns.simulator import NETWORK_LIMITS, Case, NetworkConfig, Normalisation, Simulator
 from runout.gns.training_range import measure as measure_ranges
 from runout.metrics import compare
+from runout.scene.validation import MAX_FRAMES
 from runout.simfiles import read_metadata
 
 CHECKPOINT = "checkpoint.pt"
@@ -84,6 +86,45 @@ class TrainConfig:
     radius: float | None = None  # connectivity radius in m (None: the dataset's default)
     frame_stride: int | None = None  # dataset frames per GNS step (None: 1, or the checkpoint's on --resume / --init)
     pushforward: int = 0  # each step first unrolls n ~ U{0..pushforward} steps without gradient (0: one-step)
+
+
+@dataclass(frozen=True)
+class Limit:
+    lo: float
+    hi: float
+    unit: str = ""
+    lo_open: bool = False  # (lo, hi] instead of [lo, hi]
+
+
+# The allowed values of the settings a user gives, by TrainConfig (and NetworkConfig) field, one
+# table: `runout train` checks its options against it before any work, train() its settings.
+SETTING_LIMITS = {
+    "steps": Limit(1, MAX_STEPS), "batch_size": Limit(1, 64), "lr_init": Limit(0.0, 1.0, lo_open=True),
+    "lr_decay_steps": Limit(1.0, 1e12), "noise": Limit(0.0, 10.0, " velocity std"),
+    "static_tail": Limit(0, 1_000_000, " frames"), "moving_weight": Limit(1.0, 1000.0),
+    "save_every": Limit(1, 1_000_000_000), "log_every": Limit(1, 1_000_000_000), "valid_every": Limit(0, 1_000_000_000),
+    "valid_trajectories": Limit(1, 10_000), "valid_frames": Limit(0, MAX_FRAMES), "max_hours": Limit(0.0, 1000.0, " h"),
+    "radius": Limit(0.1, 1000.0, " m"), "frame_stride": Limit(*SCHEMA_LIMITS["frame_stride"]),
+    "pushforward": Limit(*PUSHFORWARD_LIMITS),
+    **{name: Limit(lo, hi) for name, (lo, hi) in NETWORK_LIMITS.items()},
+}
+OPTION_NAMES = {"lr_init": "--lr"}  # the `runout train` options not named --field-name
+
+
+def option_name(setting: str) -> str:
+    """The `runout train` option that sets a TrainConfig or NetworkConfig field."""
+    return OPTION_NAMES.get(setting, "--" + setting.replace("_", "-"))
+
+
+def check_settings(cfg: TrainConfig, names=tuple(SETTING_LIMITS)) -> None:
+    """InputError naming the option of the first of the settings `names` outside
+    SETTING_LIMITS (None: not given, passes); whole numbers where the field is an int."""
+    for owner in (cfg, cfg.network):
+        for f in fields(owner):
+            value, limit = getattr(owner, f.name), SETTING_LIMITS.get(f.name)
+            if f.name in names and limit is not None and value is not None:
+                checks.number(value, option_name(f.name), None, limit.lo, limit.hi, limit.unit, limit.lo_open,
+                              whole=str(f.type).startswith("int"))
 
 
 def learning_rate(step: int, cfg: TrainConfig) -> float:
@@ -292,8 +333,7 @@ def _build(cfg: TrainConfig, meta: dict, data: Simulations):
     """The simulator to train, the resumed training state (or None) and the settings, after
     checking the options against each other and the data's particle types against the
     model's type table."""
-    _check_whole("--frame-stride", cfg.frame_stride, *SCHEMA_LIMITS["frame_stride"])
-    _check_whole("--pushforward", cfg.pushforward, *PUSHFORWARD_LIMITS)
+    check_settings(cfg, ("frame_stride", "pushforward"))  # the two a run cannot go on with; the rest are the caller's (lr 0 freezes a model)
     _check_conflicts(cfg)
     simulator, state, cfg = _start(cfg, meta, data)
     source = Path(cfg.out) / CHECKPOINT if cfg.resume else cfg.init
@@ -369,12 +409,6 @@ def _stride_statistics(meta: dict, data: Simulations, stride: int, noise: float)
 def noise_scale(stats: dict) -> float:
     """The velocity std that --noise is a fraction of: the mean of the x and y std (m per step)."""
     return float(sum(stats["vel_std"]) / len(stats["vel_std"]))
-
-
-def _check_whole(option: str, value: int | None, lo: int, hi: int) -> None:
-    """InputError unless value is a whole number in [lo, hi] (None passes: not given)."""
-    if value is not None and (isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi):
-        raise InputError(f"{option} = {value!r} is outside the allowed range [{lo}, {hi}] (a whole number).")
 
 
 def _statistics(meta: dict, data: Simulations, stride: int) -> dict:

@@ -16,9 +16,9 @@ from pathlib import Path
 import numpy as np
 
 from runout import checks
+from runout.contract import MATERIAL_FEATURE_NAMES, decode_material
 from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
-from runout.gns.schema import MATERIAL_FEATURE_NAMES, decode_material
 from runout.scene import Material, Scene
 from runout.simfiles import exchange_material, read_simulations, statistics
 
@@ -33,6 +33,7 @@ class Trajectory:
     bounds: np.ndarray  # [[x_lo, x_hi], [y_lo, y_hi]] m
     name: str = "trajectory"
     info: dict = field(default_factory=dict)  # engine, wall time, ... (free-form)
+    material_width: int | None = None  # material features of the GNS tuple it was read from (0: none); None: not read from one
 
     @property
     def n_frames(self) -> int:
@@ -74,8 +75,10 @@ def trajectory_from_features(
     name: str = "trajectory",
 ) -> Trajectory:
     """Rebuild a Trajectory from the GNS tuple: materials are the distinct feature rows
-    (tan phi -> phi in degrees, second column x 100 -> c in kPa)."""
+    (tan phi -> phi in degrees, second column x 100 -> c in kPa); material_width is the
+    number of feature columns (0 for none)."""
     n = positions.shape[1]
+    width = 0 if features is None else np.asarray(features).reshape(n, -1).shape[1]
     if features is None:
         features = np.zeros((n, 1), dtype=np.float32)
     features = np.asarray(features, dtype=np.float32).reshape(n, -1)
@@ -92,6 +95,7 @@ def trajectory_from_features(
         frame_dt=float(frame_dt),
         bounds=np.asarray(bounds, dtype=float),
         name=name,
+        material_width=width,
     )
 
 

@@ -127,12 +127,14 @@ def incline_scene(theta: float, mu: float, cell: float, frames: int) -> Scene:
 # ---------------------------------------------------------------- measures
 
 
-def normalised_runout(traj, width: float) -> float:
-    """L^n = (L_f - L_0) / L_0 with L_f the farthest soil point of the last frame."""
+def column_normalised_runout(traj, width: float) -> float:
+    """L^n = (L_f - L_0) / L_0 of a column of width L_0 against the left wall, L_f the
+    farthest soil point of the last frame (runout.metrics.normalised_runout is the formula
+    for any two lengths)."""
     return float((traj.positions[-1, traj.soil, 0].max() - width) / width)
 
 
-def normalised_runout_percentile(traj, width: float, q: float = 99.9) -> float:
+def column_normalised_runout_percentile(traj, width: float, q: float = 99.9) -> float:
     """L^n from the q-th percentile of the last frame's soil x instead of the farthest point,
     to show how much of L^n is a thin tail of a few points."""
     return float((np.percentile(traj.positions[-1, traj.soil, 0], q) - width) / width)
@@ -178,11 +180,11 @@ def case_paper_columns(cell: float, frames: int) -> list[tuple[CaseResult, objec
     scenes = [column_scene(w, h, phi, c, cell, frames) for _, w, h, phi, c, _ in PAPER_COLUMNS]
     out = []
     for traj, (name, w, h, phi, c, ref) in zip(simulate(scenes, progress=False), PAPER_COLUMNS):
-        ln = normalised_runout(traj, w)
+        ln = column_normalised_runout(traj, w)
         res = CaseResult(f"column_{name}", "L^n", ln, 0.85 * ref, 1.15 * ref,
                          f"paper's MPM L^n = {ref} (within 15 %)",
                          extra={"width": w, "height": h, "reference": ref,
-                                "Ln_p99.9": normalised_runout_percentile(traj, w)})
+                                "Ln_p99.9": column_normalised_runout_percentile(traj, w)})
         out.append((res, traj, "column"))
     return out
 
@@ -197,10 +199,10 @@ def case_dry_columns(cell: float, frames: int, aspects=DRY_ASPECTS, base: float 
     out = []
     for traj, (a, w, h) in zip(simulate(scenes, progress=False), shapes):
         lo, hi = dry_envelope(a)
-        ln = normalised_runout(traj, w)
+        ln = column_normalised_runout(traj, w)
         res = CaseResult(f"dry_column_a{a:g}", "L^n", ln, 0.75 * lo, 1.25 * hi,
                          f"experiments/2D DEM {lo:.2f} ... {hi:.2f} (+-25 %)",
-                         extra={"a": a, "width": w, "height": h, "Ln_p99.9": normalised_runout_percentile(traj, w)})
+                         extra={"a": a, "width": w, "height": h, "Ln_p99.9": column_normalised_runout_percentile(traj, w)})
         out.append((res, traj, "column"))
         if a <= 0.6:
             top = float(traj.positions[-1, traj.soil, 1].max())

@@ -8,6 +8,7 @@ from pathlib import Path
 import typer
 
 from runout.cli.app import app
+from runout.generate import GenerateConfig
 
 FORCE = typer.Option(False, "--force", help="Start afresh in --out, removing a previous run or another command's results there.")
 DATASET_FILES = ("generate.json", "scenes", "parts", "train.npz", "valid.npz", "test.npz", "metadata.json")
@@ -35,19 +36,19 @@ def generate(
     stage: str = typer.Option(..., "--stage", help="base (phi only, families a-d) or finetune (phi and c, b-d and columns)."),
     count: int = typer.Option(..., "--count", help="Scenes in the dataset (paper: 2000 base, 1027 finetune)."),
     out: Path = typer.Option(..., "--out", help="Dataset directory; rerun the same command to resume."),
-    seed: int = typer.Option(0, "--seed", help="Random seed; scene k depends only on (seed, stage, k)."),
+    seed: int = typer.Option(GenerateConfig.seed, "--seed", help="Random seed; scene k depends only on (seed, stage, k)."),
     device: str = typer.Option("cpu", "--device", help="cpu or cuda (under torchrun each rank takes cuda:LOCAL_RANK)."),
-    batch: int = typer.Option(16, "--batch", help="Scenes per MPM batch and per part file."),
+    batch: int = typer.Option(GenerateConfig.batch, "--batch", help="Scenes per MPM batch and per part file."),
     shard: str = typer.Option(None, "--shard", help="i/n: run only batches j with j mod n = i (default: torchrun's RANK/WORLD_SIZE)."),
-    frames: int = typer.Option(480, "--frames", help="Output frames per scene, frame 0 included."),
-    cell_size: float = typer.Option(4.0, "--cell-size", help="Background cell size in m (paper: 4; the shipped CPU models: 8). Points are 2 x 2 per cell."),
+    frames: int = typer.Option(GenerateConfig.frames, "--frames", help="Output frames per scene, frame 0 included."),
+    cell_size: float = typer.Option(GenerateConfig.cell_size, "--cell-size", help="Background cell size in m (paper: 4; the shipped CPU models: 8). Points are 2 x 2 per cell."),
     force: bool = FORCE,
 ) -> None:
     """Sample scenes, run them through the batched MPM and write train/valid/test.npz and
     metadata.json (GNS layout). A killed run resumes where it stopped."""
     from runout import checks
     from runout.errors import Interrupted
-    from runout.generate import GenerateConfig, generate as run, parse_shard, shard_from_env
+    from runout.generate import generate as run, parse_shard, shard_from_env
     from runout.outputs import check_folder, claim
 
     where = parse_shard(shard) if shard else shard_from_env(os.environ)

@@ -7,13 +7,20 @@ engines; MPM runs are cached by scene in --cache.
 
 from __future__ import annotations
 
+import inspect
+import typing
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import typer
 
 from runout.cli.app import app
 from runout.errors import InputError
+from runout.evaluate.columns import ColumnGrid
+from runout.evaluate.diagnostics import PAPER_CASE
 from runout.evaluate.scenes import EXAMPLES
+from runout.evaluate.sensitivity import SensitivityConfig
 from runout.mpm.cache import DEFAULT_CACHE
 
 evaluate_app = typer.Typer(
@@ -22,14 +29,67 @@ evaluate_app = typer.Typer(
 )
 app.add_typer(evaluate_app, name="evaluate")
 
-MODEL = typer.Option(..., "--model", help="GNS checkpoint (.pt) to evaluate.")
-OUT = typer.Option(..., "--out", help="Results folder; each study writes OUT/<study>/.")
-DEVICE = typer.Option("cpu", "--device", help="cpu or cuda, for both the MPM and the GNS.")
-CACHE = typer.Option(DEFAULT_CACHE, "--cache", help="Folder of cached MPM runs, keyed by a hash of each scene's TOML.")
-EXAMPLE_DIR = typer.Option(EXAMPLES, "--examples", help="Folder holding the example scenes (column_a*.toml, four_layer_slope.toml, dam.toml, dam_inverse.toml).")
-SCALE = typer.Option(1.0, "--scale", help="Shrink domain and geometry by this factor in (0, 1] (cells stay the model's); 1 = the paper's geometry.")
-PROGRESS = typer.Option(True, "--progress/--no-progress", help="Show progress bars.")
-FORCE = typer.Option(False, "--force", help="Replace another command's results in --out (other studies' results are kept).")
+# The options every study on the example scenes takes, defined once: study_command puts them
+# first in each such command's signature and hands them over as one Study.
+STUDY_OPTIONS = {
+    "model": (Path, typer.Option(..., "--model", help="GNS checkpoint (.pt) to evaluate.")),
+    "out": (Path, typer.Option(..., "--out", help="Results folder; each study writes OUT/<study>/.")),
+    "device": (str, typer.Option("cpu", "--device", help="cpu or cuda, for both the MPM and the GNS.")),
+    "cache": (Path, typer.Option(DEFAULT_CACHE, "--cache", help="Folder of cached MPM runs, keyed by a hash of each scene's TOML.")),
+    "examples": (Path, typer.Option(EXAMPLES, "--examples", help="Folder holding the example scenes (column_a*.toml, four_layer_slope.toml, dam.toml, dam_inverse.toml).")),
+    "scale": (float, typer.Option(1.0, "--scale", help="Shrink domain and geometry by this factor in (0, 1] (cells stay the model's); 1 = the paper's geometry.")),
+    "progress": (bool, typer.Option(True, "--progress/--no-progress", help="Show progress bars.")),
+    "force": (bool, typer.Option(False, "--force", help="Replace another command's results in --out (other studies' results are kept).")),
+}
+OUT, DEVICE, PROGRESS, FORCE = (STUDY_OPTIONS[name][1] for name in ("out", "device", "progress", "force"))
+
+
+@dataclass(frozen=True)
+class Study:
+    """The shared options of one study command (STUDY_OPTIONS)."""
+
+    model: Path
+    out: Path
+    device: str
+    cache: Path
+    examples: Path
+    scale: float
+    progress: bool
+    force: bool
+
+    def start(self, name: str, frames: int | None):
+        """Check the options (--device, --scale, then --frames against the model's needs),
+        make OUT/NAME's place in OUT and return the engines the study runs (an EngineRun)."""
+        from runout import checks
+        from runout.evaluate import EngineRun, MpmCache
+        from runout.evaluate.scenes import check_scale
+
+        checks.device(self.device)
+        check_scale(self.scale)
+        if frames is not None:
+            from runout.gns.checkpoint import load_simulator
+
+            load_simulator(self.model).schema.check_frames(frames, "--frames")
+        _claim_out(self.out, name, self.force)
+        return EngineRun(MpmCache(self.cache), self.device, self.progress, log=typer.echo)
+
+
+def study_command(func: Callable) -> Callable:
+    """Register func(study: Study, **its own options) as `runout evaluate NAME`, its
+    signature the shared STUDY_OPTIONS followed by its own."""
+    hints = typing.get_type_hints(func)
+    own = [p.replace(annotation=hints[p.name]) for p in list(inspect.signature(func).parameters.values())[1:]]
+    shared = [inspect.Parameter(name, inspect.Parameter.POSITIONAL_OR_KEYWORD, default=option, annotation=kind)
+              for name, (kind, option) in STUDY_OPTIONS.items()]
+
+    def command(**options) -> None:
+        func(Study(**{name: options.pop(name) for name in STUDY_OPTIONS}), **options)
+
+    command.__name__, command.__doc__ = func.__name__, func.__doc__
+    command.__signature__ = inspect.Signature(shared + own)
+    command.__annotations__ = {p.name: p.annotation for p in shared + own}
+    evaluate_app.command()(command)
+    return func
 
 
 def _claim_out(out: Path, study: str, force: bool) -> None:
@@ -50,6 +110,11 @@ def parse_numbers(text: str, option: str) -> tuple[float, ...]:
     return values
 
 
+def listed(values) -> str:
+    """(0.5, 1.0, 2.0) -> '0.5,1,2': a default of a numbers option."""
+    return ",".join(f"{v:g}" for v in values)
+
+
 def parse_sizes(text: str) -> tuple[int, ...]:
     values = parse_numbers(text, "--sizes")
     if any(v != int(v) or v < 1 for v in values):
@@ -57,75 +122,48 @@ def parse_sizes(text: str) -> tuple[int, ...]:
     return tuple(int(v) for v in values)
 
 
-def _check_frames(frames: int | None) -> None:
-    if frames is not None and frames < 8:
-        raise InputError(f"--frames {frames} must be at least 8 (6 input frames and a rollout).")
-
-
-def _check_options(device: str, scale: float) -> None:
-    """--device and --scale of a study, before any file is read."""
-    from runout import checks
-    from runout.evaluate.scenes import check_scale
-
-    checks.device(device)
-    check_scale(scale)
-
-
-def _engines(cache: Path, device: str, progress: bool):
-    from runout.evaluate import EngineRun, MpmCache
-
-    return EngineRun(MpmCache(cache), device, progress, log=typer.echo)
-
-
-@evaluate_app.command()
+@study_command
 def columns(
-    model: Path = MODEL, out: Path = OUT, device: str = DEVICE, cache: Path = CACHE, examples: Path = EXAMPLE_DIR,
-    scale: float = SCALE, progress: bool = PROGRESS, force: bool = FORCE,
-    aspects: str = typer.Option("0.5,1,2", help="Aspect ratios H0/L0 (0.5, 1 and/or 2: the example columns)."),
-    phis: str = typer.Option("0,11.25,22.5,33.75,45", help="Friction angles (degrees)."),
-    cohesions: str = typer.Option("10,25,40,55,70", help="Cohesions (kPa)."),
-    frames: int = typer.Option(600, help="Frames of every run (0.0375 s apart)."),
+    study: Study,
+    aspects: str = typer.Option(listed(ColumnGrid.aspects), help="Aspect ratios H0/L0 (0.5, 1 and/or 2: the example columns)."),
+    phis: str = typer.Option(listed(ColumnGrid.phis), help="Friction angles (degrees)."),
+    cohesions: str = typer.Option(listed(ColumnGrid.cohesions), help="Cohesions (kPa)."),
+    frames: int = typer.Option(ColumnGrid.frames, help="Frames of every run (0.0375 s apart)."),
 ) -> None:
     """Column-collapse grid (paper §5.1.1): normalised runout of MPM and GNS, errors, R², 1:1 plots, error heat maps and the 25th/50th/75th-percentile cases over time."""
     from runout.evaluate import ColumnGrid, run_columns
 
-    _check_frames(frames)
-    _check_options(device, scale)
-    _claim_out(out, "columns", force)
+    engines = study.start("columns", frames)
     grid = ColumnGrid(parse_numbers(aspects, "--aspects"), parse_numbers(phis, "--phis"),
-                      parse_numbers(cohesions, "--cohesions"), frames, scale, examples)
-    summary = run_columns(model, out, grid, _engines(cache, device, progress))
+                      parse_numbers(cohesions, "--cohesions"), frames, study.scale, study.examples)
+    summary = run_columns(study.model, study.out, grid, engines)
     for b in summary["by_aspect"]:
         typer.echo(f"a = {b['aspect']:g}: mean error {b['mean_ape_percent']:.2f} %, CV {b['cv_ape']:.2f}, R² {b['r2']:.3f}")
-    typer.echo(f"wrote {out / 'columns'}/cases.csv, summary.json and figures")
+    typer.echo(f"wrote {study.out / 'columns'}/cases.csv, summary.json and figures")
 
 
-@evaluate_app.command()
+@study_command
 def slope(
-    model: Path = MODEL, out: Path = OUT, device: str = DEVICE, cache: Path = CACHE, examples: Path = EXAMPLE_DIR,
-    scale: float = SCALE, progress: bool = PROGRESS, force: bool = FORCE,
+    study: Study,
     frames: int = typer.Option(None, help="Frames (default: the scene's 480)."),
     rerun_mpm: bool = typer.Option(False, "--rerun-mpm", help="Run the MPM again (not from the cache) to time it on this machine."),
 ) -> None:
     """Four-layer slope (paper §5.1.2): runout error each side of x = 500 m, fields at frames 0, 80, 180 and the last, displacement-error growth, and both engines' wall time."""
     from runout.evaluate import run_slope
 
-    _check_frames(frames)
-    _check_options(device, scale)
-    _claim_out(out, "slope", force)
-    s = run_slope(model, out, _engines(cache, device, progress), examples, frames, scale, rerun_mpm)
+    engines = study.start("slope", frames)
+    s = run_slope(study.model, study.out, engines, study.examples, frames, study.scale, rerun_mpm)
     typer.echo(f"runout error left {s['runout_left_m']['ape_percent']:.2f} %, right {s['runout_right_m']['ape_percent']:.2f} %; "
                f"wall time MPM {s['wall_time_s']['mpm']:.4g} s, GNS {s['wall_time_s']['gns']:.4g} s")
-    typer.echo(f"wrote {out / 'slope'}/summary.json and figures")
+    typer.echo(f"wrote {study.out / 'slope'}/summary.json and figures")
 
 
-@evaluate_app.command()
+@study_command
 def diagnostics(
-    model: Path = MODEL, out: Path = OUT, device: str = DEVICE, cache: Path = CACHE, examples: Path = EXAMPLE_DIR,
-    scale: float = SCALE, progress: bool = PROGRESS, force: bool = FORCE,
-    aspect: float = typer.Option(2.0, help="Aspect ratio of the column (0.5, 1 or 2)."),
-    phi: float = typer.Option(11.25, help="Friction angle (degrees)."),
-    c: float = typer.Option(10.0, "--c", help="Cohesion (kPa)."),
+    study: Study,
+    aspect: float = typer.Option(PAPER_CASE.aspect, help="Aspect ratio of the column (0.5, 1 or 2)."),
+    phi: float = typer.Option(PAPER_CASE.phi, help="Friction angle (degrees)."),
+    c: float = typer.Option(PAPER_CASE.cohesion, "--c", help="Cohesion (kPa)."),
     frames: int = typer.Option(600, help="Frames of the run."),
 ) -> None:
     """Velocity-space and physical-space error diagnostics (paper §5.1.1) at frames 80, 200 and the last, against the model's training velocity distribution."""
@@ -134,38 +172,33 @@ def diagnostics(
     from runout.evaluate.scenes import column_file
     from runout.scene import MAX_STRENGTH
 
-    _check_frames(frames)
-    _check_options(device, scale)
     column_file(aspect)
     check_range("--phi", phi, 0.0, 60.0, " degrees")
     check_range("--c", c, 0.0, MAX_STRENGTH, " kPa")
-    _claim_out(out, "diagnostics", force)
-    s = run_diagnostics(model, out, _engines(cache, device, progress), ColumnCase(aspect, phi, c), frames, scale, examples)
+    engines = study.start("diagnostics", frames)
+    s = run_diagnostics(study.model, study.out, engines, ColumnCase(aspect, phi, c), frames, study.scale, study.examples)
     for f in s["frames"]:
         typer.echo(f"frame {f['frame']}: median velocity error {f['median_error_m_s']:.3g} m/s, "
                    f"{100 * f['share_outside_2sigma']:.1f} % of points outside 2σ")
-    typer.echo(f"wrote {out / 'diagnostics'}/summary.json and velocity_diagnostics.png")
+    typer.echo(f"wrote {study.out / 'diagnostics'}/summary.json and velocity_diagnostics.png")
 
 
-@evaluate_app.command()
+@study_command
 def inverse(
-    model: Path = MODEL, out: Path = OUT, device: str = DEVICE, cache: Path = CACHE, examples: Path = EXAMPLE_DIR,
-    scale: float = SCALE, progress: bool = PROGRESS, force: bool = FORCE,
+    study: Study,
     frames: int = typer.Option(None, help="Frames of the MPM target and the rollout (default: the scene's 400)."),
     max_iterations: int = typer.Option(None, help="L-BFGS-B iterations (default: examples/dam_inverse.toml's)."),
 ) -> None:
     """Dam inversion (paper §5.2): MPM target, then c1 in [10, 100] kPa, c2 in [99, 101] kPa and phi3 in [5, 50] degrees back-calculated with the inverse module."""
     from runout.evaluate import run_inverse
 
-    _check_frames(frames)
     if max_iterations is not None and max_iterations < 1:
         raise InputError(f"--max-iterations {max_iterations} must be a positive whole number.")
-    _check_options(device, scale)
-    _claim_out(out, "inverse", force)
-    s = run_inverse(model, out, _engines(cache, device, progress), examples, frames, scale, max_iterations, typer.echo)
+    engines = study.start("inverse", frames)
+    s = run_inverse(study.model, study.out, engines, study.examples, frames, study.scale, max_iterations, typer.echo)
     for p in s["parameters"]:
         typer.echo(f"{p['name']}: inferred {p['inferred']:.4g} {p['unit']} (true {p['true']}, bounds [{p['lower']:g}, {p['upper']:g}])")
-    typer.echo(f"wrote {out / 'inverse'}/summary.json, target.png and run/")
+    typer.echo(f"wrote {study.out / 'inverse'}/summary.json, target.png and run/")
 
 
 @evaluate_app.command()
@@ -173,15 +206,15 @@ def sensitivity(
     data: Path = typer.Option(..., "--data", help="Dataset folder: train.npz, metadata.json and the held-out split."),
     init: Path = typer.Option(..., "--init", help="Checkpoint every subset is fine-tuned from."),
     out: Path = OUT, device: str = DEVICE, progress: bool = PROGRESS, force: bool = FORCE,
-    sizes: str = typer.Option("10,50,100,250,500,750,1000", help="Subset sizes N (first N training simulations)."),
-    steps: int = typer.Option(4_500_000, help="Fixed step budget per subset."),
-    epochs: int = typer.Option(10, help="Fixed epoch budget per subset."),
-    held_out: int = typer.Option(20, "--held-out", help="Held-out simulations rolled out per model."),
-    split: str = typer.Option("test", help="Held-out split file in --data (test or valid)."),
+    sizes: str = typer.Option(listed(SensitivityConfig.sizes), help="Subset sizes N (first N training simulations)."),
+    steps: int = typer.Option(SensitivityConfig.steps, help="Fixed step budget per subset."),
+    epochs: int = typer.Option(SensitivityConfig.epochs, help="Fixed epoch budget per subset."),
+    held_out: int = typer.Option(SensitivityConfig.held_out, "--held-out", help="Held-out simulations rolled out per model."),
+    split: str = typer.Option(SensitivityConfig.split, help="Held-out split file in --data (test or valid)."),
 ) -> None:
     """Data-size study (paper §6): fine-tune subsets under a fixed step and a fixed epoch budget; median and 25th-75th percentile rollout MSE on held-out simulations."""
     from runout import checks
-    from runout.evaluate import SensitivityConfig, run_sensitivity
+    from runout.evaluate import run_sensitivity
 
     if split not in ("test", "valid"):
         raise InputError(f"--split {split!r} must be test or valid.")

@@ -11,76 +11,52 @@ import typer
 
 from runout.cli.app import app
 from runout.errors import InputError
+from runout.gns.simulator import NetworkConfig
+from runout.scene.validation import MAX_FRAMES
+from runout.train import TrainConfig, option_name
 
-MAX_ROLLOUT_FRAMES = 1_000_000  # as many as a scene may ask the MPM for
 MAX_STOP_SPEED = 100.0  # m/s
-MAX_NOISE = 10.0  # training noise, in velocity std of the data
-MAX_STATIC_TAIL = 1_000_000  # frames
 
 
+# Defaults are TrainConfig's and NetworkConfig's fields; limits are runout.train.SETTING_LIMITS (check_settings).
 @app.command()
 def train(
     data: Path = typer.Option(..., "--data", help="Dataset folder with train.npz, metadata.json (and valid.npz for validation rollouts)."),
     out: Path = typer.Option(..., "--out", help="Run folder: checkpoint.pt, best.pt, log.jsonl (and tensorboard/ if installed)."),
-    steps: int = typer.Option(2_000_000, "--steps", help="Train until the step counter reaches this value."),
-    resume: bool = typer.Option(False, "--resume", help="Continue from OUT/checkpoint.pt exactly where it stopped."),
-    init: Path = typer.Option(None, "--init", help="Fine-tune from this checkpoint; extra material inputs (e.g. cohesion) start with zero weights."),
-    device: str = typer.Option("auto", "--device", help="auto, cpu, cuda or cuda:K (under torchrun each process takes its LOCAL_RANK GPU)."),
-    batch_size: int = typer.Option(2, "--batch-size", help="Graphs per process and step."),
-    lr: float = typer.Option(1e-4, "--lr", help="Initial learning rate; decays as (lr - 1e-6) 0.1^(step / D) + 1e-6."),
-    lr_decay_steps: float = typer.Option(5e6, "--lr-decay-steps", help="D: steps over which the learning rate falls tenfold (paper: 5e6; fit it to the budget)."),
-    max_hours: float = typer.Option(0.0, "--max-hours", help="Wall-clock hours for this run (one chunk); then save and stop, exit 0 (0: no limit)."),
-    radius: float = typer.Option(None, "--radius", help="Connectivity radius in m (default: the dataset's, 2.3 point spacings); new runs only."),
-    frame_stride: int = typer.Option(None, "--frame-stride", help="Dataset frames per GNS step, 1-16 (default 1; --resume keeps the checkpoint's, --init keeps it unless this asks for another)."),
-    pushforward: int = typer.Option(0, "--pushforward", help="Pushforward training, N = 0-10: each step rolls the model out n steps without gradient, n uniform in 0..N per step, and trains on the window it made (0: one-step training)."),
-    noise: float = typer.Option(0.3, "--noise", help="Velocity noise std of the inputs, as a fraction of the data's velocity std (mean of x and y, m per step); docs/training.md gives the pilots behind the default."),
-    rest_windows: bool = typer.Option(True, "--rest-windows/--no-rest-windows", help="Also train on windows that start before frame 0 (the scene at rest, where every rollout starts)."),
-    moving_weight: float = typer.Option(1.0, "--moving-weight", help="Loss weight of a point moving faster than 0.25 m/s over its target step, against 1 for a slower one (1: every point the same)."),
-    static_tail: int = typer.Option(None, "--static-tail", help="Train only up to this many frames after a simulation's flow stops (soil slower than 0.05 m/s); default: every frame."),
-    latent: int = typer.Option(128, "--latent", help="Latent size of nodes and edges."),
-    hidden: int = typer.Option(128, "--hidden", help="Units of each hidden MLP layer."),
-    message_passing: int = typer.Option(10, "--message-passing-steps", help="Processor steps (unshared weights)."),
-    save_every: int = typer.Option(1000, "--save-every", help="Steps between checkpoints."),
-    log_every: int = typer.Option(100, "--log-every", help="Steps per log.jsonl line (mean loss)."),
-    valid_every: int = typer.Option(20_000, "--valid-every", help="Steps between validation rollouts (0: never)."),
-    valid_trajectories: int = typer.Option(1, "--valid-trajectories", help="Validation trajectories rolled out each time."),
-    valid_frames: int = typer.Option(0, "--valid-frames", help="Frames per validation rollout (0: whole trajectory)."),
-    seed: int = typer.Option(0, "--seed", help="Seed of the initial weights, window sampling and noise."),
-    bf16: bool = typer.Option(False, "--bf16", help="Autocast the network to bfloat16 (faster on GPUs and on CPUs with AVX512-BF16 or AMX; elsewhere on a CPU it trains in float32, with a warning)."),
-    checkpoint_layers: bool = typer.Option(True, "--checkpoint-layers/--no-checkpoint-layers", help="Recompute processor steps in backward to save memory."),
+    steps: int = typer.Option(TrainConfig.steps, "--steps", help="Train until the step counter reaches this value."),
+    resume: bool = typer.Option(TrainConfig.resume, "--resume", help="Continue from OUT/checkpoint.pt exactly where it stopped."),
+    init: Path = typer.Option(TrainConfig.init, "--init", help="Fine-tune from this checkpoint; extra material inputs (e.g. cohesion) start with zero weights."),
+    device: str = typer.Option(TrainConfig.device, "--device", help="auto, cpu, cuda or cuda:K (under torchrun each process takes its LOCAL_RANK GPU)."),
+    batch_size: int = typer.Option(TrainConfig.batch_size, "--batch-size", help="Graphs per process and step."),
+    lr: float = typer.Option(TrainConfig.lr_init, option_name("lr_init"), help=f"Initial learning rate; decays as (lr - {TrainConfig.lr_final:g}) 0.1^(step / D) + {TrainConfig.lr_final:g}."),
+    lr_decay_steps: float = typer.Option(TrainConfig.lr_decay_steps, "--lr-decay-steps", help="D: steps over which the learning rate falls tenfold (paper: 5e6; fit it to the budget)."),
+    max_hours: float = typer.Option(TrainConfig.max_hours, "--max-hours", help="Wall-clock hours for this run (one chunk); then save and stop, exit 0 (0: no limit)."),
+    radius: float = typer.Option(TrainConfig.radius, "--radius", help="Connectivity radius in m (default: the dataset's, 2.3 point spacings); new runs only."),
+    frame_stride: int = typer.Option(TrainConfig.frame_stride, "--frame-stride", help="Dataset frames per GNS step, 1-16 (default 1; --resume keeps the checkpoint's, --init keeps it unless this asks for another)."),
+    pushforward: int = typer.Option(TrainConfig.pushforward, "--pushforward", help="Pushforward training, N = 0-10: each step rolls the model out n steps without gradient, n uniform in 0..N per step, and trains on the window it made (0: one-step training)."),
+    noise: float = typer.Option(TrainConfig.noise, "--noise", help="Velocity noise std of the inputs, as a fraction of the data's velocity std (mean of x and y, m per step); docs/training.md gives the pilots behind the default."),
+    rest_windows: bool = typer.Option(TrainConfig.rest_windows, "--rest-windows/--no-rest-windows", help="Also train on windows that start before frame 0 (the scene at rest, where every rollout starts)."),
+    moving_weight: float = typer.Option(TrainConfig.moving_weight, "--moving-weight", help="Loss weight of a point moving faster than 0.25 m/s over its target step, against 1 for a slower one (1: every point the same)."),
+    static_tail: int = typer.Option(TrainConfig.static_tail, "--static-tail", help="Train only up to this many frames after a simulation's flow stops (soil slower than 0.05 m/s); default: every frame."),
+    latent: int = typer.Option(NetworkConfig.latent, "--latent", help="Latent size of nodes and edges."),
+    hidden: int = typer.Option(NetworkConfig.hidden, "--hidden", help="Units of each hidden MLP layer."),
+    message_passing: int = typer.Option(NetworkConfig.message_passing_steps, option_name("message_passing_steps"), help="Processor steps (unshared weights)."),
+    save_every: int = typer.Option(TrainConfig.save_every, "--save-every", help="Steps between checkpoints."),
+    log_every: int = typer.Option(TrainConfig.log_every, "--log-every", help="Steps per log.jsonl line (mean loss)."),
+    valid_every: int = typer.Option(TrainConfig.valid_every, "--valid-every", help="Steps between validation rollouts (0: never)."),
+    valid_trajectories: int = typer.Option(TrainConfig.valid_trajectories, "--valid-trajectories", help="Validation trajectories rolled out each time."),
+    valid_frames: int = typer.Option(TrainConfig.valid_frames, "--valid-frames", help="Frames per validation rollout (0: whole trajectory)."),
+    seed: int = typer.Option(TrainConfig.seed, "--seed", help="Seed of the initial weights, window sampling and noise."),
+    bf16: bool = typer.Option(TrainConfig.bf16, "--bf16", help="Autocast the network to bfloat16 (faster on GPUs and on CPUs with AVX512-BF16 or AMX; elsewhere on a CPU it trains in float32, with a warning)."),
+    checkpoint_layers: bool = typer.Option(TrainConfig.checkpoint_layers, "--checkpoint-layers/--no-checkpoint-layers", help="Recompute processor steps in backward to save memory."),
     force: bool = typer.Option(False, "--force", help="Start afresh in --out, removing a previous run or another command's results there."),
 ) -> None:
     """Train the GNS on an MPM dataset (one process, or many under torchrun). Ctrl-C saves
     the checkpoint of the last whole step (exit 130); --resume continues exactly."""
     from runout import checks
-    from runout.gns.checkpoint import MAX_STEPS
-    from runout.gns.schema import SCHEMA_LIMITS
-    from runout.gns.simulator import NETWORK_LIMITS, NetworkConfig
     from runout.outputs import check_folder, claim
-    from runout.train import BEST, CHECKPOINT, LOG, PUSHFORWARD_LIMITS, TrainConfig, train as run_training
+    from runout.train import BEST, CHECKPOINT, LOG, check_settings, train as run_training
 
-    for name, value, lo, hi in (
-        ("--steps", steps, 1, MAX_STEPS), ("--batch-size", batch_size, 1, 64),
-        ("--save-every", save_every, 1, 1_000_000_000), ("--log-every", log_every, 1, 1_000_000_000),
-        ("--valid-every", valid_every, 0, 1_000_000_000), ("--valid-trajectories", valid_trajectories, 1, 10_000),
-        ("--valid-frames", valid_frames, 0, MAX_ROLLOUT_FRAMES),
-        ("--latent", latent, *NETWORK_LIMITS["latent"]), ("--hidden", hidden, *NETWORK_LIMITS["hidden"]),
-        ("--message-passing-steps", message_passing, *NETWORK_LIMITS["message_passing_steps"]),
-    ):
-        check_range(name, value, lo, hi)
-    check_range("--noise", noise, 0.0, MAX_NOISE, " velocity std")
-    check_range("--static-tail", static_tail, 0, MAX_STATIC_TAIL, " frames")
-    check_range("--moving-weight", moving_weight, 1.0, 1000.0)
-    check_range("--lr-decay-steps", lr_decay_steps, 1.0, 1e12)
-    check_range("--max-hours", max_hours, 0.0, 1000.0, " h")
-    check_range("--radius", radius, 0.1, 1000.0, " m")
-    check_range("--frame-stride", frame_stride, *SCHEMA_LIMITS["frame_stride"])
-    check_range("--pushforward", pushforward, *PUSHFORWARD_LIMITS)
-    check_range("--lr", lr, 0.0, 1.0, lo_open=True)
-    checks.device(device, auto=True)
-    folder = check_folder(out, "train", (CHECKPOINT, BEST, LOG, "tensorboard"), mode="resume", force=force)
-    if int(os.environ.get("RANK", "0")) == 0:  # under torchrun only the writing process prepares it
-        claim(folder)
     cfg = TrainConfig(
         data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise=noise,
         rest_windows=rest_windows, static_tail=static_tail, moving_weight=moving_weight,
@@ -91,6 +67,11 @@ def train(
         checkpoint_layers=checkpoint_layers, bf16=bf16, lr_decay_steps=lr_decay_steps,
         max_hours=max_hours, radius=radius, frame_stride=frame_stride, pushforward=pushforward,
     )
+    check_settings(cfg)
+    checks.device(device, auto=True)
+    folder = check_folder(out, "train", (CHECKPOINT, BEST, LOG, "tensorboard"), mode="resume", force=force)
+    if int(os.environ.get("RANK", "0")) == 0:  # under torchrun only the writing process prepares it
+        claim(folder)
     run_training(cfg)
 
 
@@ -113,22 +94,23 @@ def rollout(
     from runout import checks
     from runout.gns.checkpoint import load_simulator
     from runout.gns.rollout import rollout_trajectory
-    from runout.gns.run import ROLLOUT_FILES, initial_state, write_rollout_outputs
     from runout.gns.training_range import range_warnings
+    from runout.gns_run import ROLLOUT_FILES, initial_state, write_rollout_outputs
     from runout.outputs import check_folder, claim
     from runout.plots.animation import animation_name
 
-    check_range("--frames", frames, 0, MAX_ROLLOUT_FRAMES)
+    check_range("--frames", frames, 0, MAX_FRAMES)
     check_range("--stop-speed", stop_speed, 0.0, MAX_STOP_SPEED, " m/s")
     checks.device(device)
     writes = ROLLOUT_FILES + ((animation_name(),) if animation else ()) + (("vtk",) if vtk else ())
     folder = check_folder(out, "rollout", writes, force=force)
     simulator = load_simulator(model, device)
-    initial, truth, warnings = initial_state(source, split, index, simulator, log=lambda line: typer.echo(line, err=True))
-    for line in warnings:
+    begin = initial_state(source, split, index, simulator, log=lambda line: typer.echo(line, err=True))
+    initial, truth = begin.initial, begin.truth
+    for line in begin.warnings:
         typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW)
-    n_frames = frames or (truth.n_frames if truth is not None else initial.info.get("frames", 480))
-    given = simulator.window_frames if from_frames else 1
+    n_frames = frames or begin.frames
+    given = simulator.schema.start_frames(from_rest=not from_frames)
     if n_frames <= given:
         raise InputError(f"--frames = {n_frames} must exceed the {given} initial frame{'s' if given > 1 else ''}.")
     if from_frames and source.is_file():

@@ -25,7 +25,7 @@ def mpm(
     """Run the MPM on a scene: writes trajectory.npz + metadata.json (GNS layout, material
     features [tan phi, c/100 kPa]), initial.png, final.png and animation.gif."""
     from runout import checks
-    from runout.mpm.run import run_mpm
+    from runout.mpm_run import run_mpm
 
     checks.device(device)
     traj, writes = run_mpm(scene, out, frames, device, animate, vtk, compile, force)

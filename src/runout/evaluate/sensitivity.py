@@ -4,9 +4,10 @@ held-out simulations.
 
 A subset is the first N simulations of DATA/train.npz (with the full set's metadata, so
 every subset shares its normalisation). One epoch is one pass over every training window:
-sum over the subset's simulations of (frames - 6) windows, divided by the batch size and
-rounded up. The rollout error of a held-out simulation is its position MSE (m²) averaged
-over every frame of a rollout from rest (its frame 0 held).
+the windows runout.train samples from the subset at the model's history and frame stride
+(those of a scene at rest included), divided by the batch size and rounded up. The rollout
+error of a held-out simulation is its position MSE (m²) averaged over every frame of a
+rollout from rest (its frame 0 held).
 
 Writes OUT/sensitivity/: data_N/ (subsets), steps_N/ and epochs_N/ (training runs; a rerun
 resumes or reuses them), rollouts.csv, summary.json, rollout_mse.png and loss_history.png.
@@ -26,15 +27,17 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from runout.contract import FeatureSchema
 from runout.dataset import split_trajectories
+from runout.defaults import FRAME_DT
 from runout.errors import InputError
 from runout.evaluate.model_card import model_card
 from runout.evaluate.sensitivity_figures import draw_loss_histories, draw_rollout_mse
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
-from runout.gns.schema import HISTORY
+from runout.gns.samples import Simulations
 from runout.metrics import position_mse
-from runout.simfiles import iter_simulations, write_simulations
+from runout.simfiles import iter_simulations, read_metadata, write_simulations
 from runout.train import CHECKPOINT, TrainConfig, train
 
 PAPER_SIZES = (10, 50, 100, 250, 500, 750, 1000)
@@ -67,10 +70,11 @@ def run_sensitivity(cfg: SensitivityConfig, out: Path) -> dict:
     cfg.check()
     folder = Path(out) / "sensitivity"
     held_out = list(split_trajectories(cfg.data, cfg.split, cfg.held_out))
+    schema = load_simulator(cfg.init).schema  # every subset is fine-tuned at the model's history and stride
     rows, runs = [], {}
     for size, budget in itertools.product(cfg.sizes, BUDGETS):
         subset = write_subset(cfg.data, folder / f"data_{size}", size)
-        steps = cfg.steps if budget == "steps" else cfg.epochs * steps_per_epoch(subset, cfg.batch_size)
+        steps = cfg.steps if budget == "steps" else cfg.epochs * steps_per_epoch(subset, cfg.batch_size, schema)
         run_dir = fine_tune(cfg, subset, folder / f"{budget}_{size}", steps)
         runs[(budget, size)] = run_dir
         rows += [{"budget": budget, "size": size, "steps": steps, "held_out": k, "rollout_mse_m2": mse}
@@ -96,9 +100,12 @@ def write_subset(data: Path, folder: Path, size: int) -> Path:
     return folder
 
 
-def steps_per_epoch(subset: Path, batch_size: int) -> int:
-    windows = sum(p.shape[0] - HISTORY for p, _, _ in iter_simulations(subset / "train.npz"))
-    return max(1, math.ceil(windows / batch_size))
+def steps_per_epoch(subset: Path, batch_size: int, schema: FeatureSchema) -> int:
+    """Steps of one pass over the windows training samples from SUBSET/train.npz at the
+    schema's history and frame stride (with TrainConfig's rest windows and static tail)."""
+    data = Simulations(subset / "train.npz", torch.device("cpu"), schema.history, rest_windows=TrainConfig.rest_windows,
+                       static_tail=TrainConfig.static_tail, frame_dt=float(read_metadata(subset).get("dt", FRAME_DT)))
+    return max(1, math.ceil(data.with_stride(schema.frame_stride).n_windows / batch_size))
 
 
 def fine_tune(cfg: SensitivityConfig, subset: Path, run_dir: Path, steps: int) -> Path:

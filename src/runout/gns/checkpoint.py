@@ -28,8 +28,8 @@ from pathlib import Path
 import torch
 
 from runout import checks
+from runout.contract import MAX_RADIUS, FeatureSchema
 from runout.errors import InputError
-from runout.gns.schema import MAX_RADIUS, FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 
 FORMAT = "runout-gns-1"

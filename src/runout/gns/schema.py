@@ -1,147 +1,17 @@
-"""The GNS node-feature layout as explicit data, stored in every checkpoint.
+"""The GNS contract as the GNS reads it: runout.contract's names (FeatureSchema, HISTORY,
+SCHEMA_LIMITS, material_names_for_width) and its material codec as a differentiable function
+of tensors, the inverse's way from phi and c to the features.
 
-Node features, in this column order (material features last, so a model can be widened
-with one more material input by appending zero columns to the encoder's first layer):
-
-    velocities   (history - 1) x dim   normalised per-step velocities, oldest first
-    walls        2 x dim               clip((x - lo) / R), clip((hi - x) / R) per dimension
-    type         type_embedding        learned embedding of the particle type
-    material     len(material_features) e.g. [tan phi, c / 100 kPa]
-
-A step spans `frame_stride` dataset frames: the window holds the positions at frames t,
-t + K, ..., t + (history - 1) K, the velocities are differences over K frames and the model
-predicts frame t + history K (K = 1: every frame, the paper's GNS).
-"""
+runout.contract owns them all and is torch-free, so that scenes and files read the contract
+without the network; this module adds only the tensor encoder."""
 
 from __future__ import annotations
 
-import math
-from dataclasses import asdict, dataclass, fields
-
-import numpy as np
 import torch
 
-from runout.defaults import PARTICLE_TYPE_SOIL
+from runout.contract import COHESION_SCALE, HISTORY, SCHEMA_LIMITS, FeatureSchema, material_names_for_width
 
-MATERIAL_FEATURE_NAMES = ("tan_phi", "c_over_100kPa")  # the order of encode_material
-COHESION_SCALE = 100.0  # kPa: the second material feature is c / COHESION_SCALE
-HISTORY = 6  # positions per input window -> 5 velocities
-# Default connectivity radius as a multiple of the point spacing: 2.3 x 2 m = 4.6 m gives
-# ~16 neighbours per point at 4 points per 4 m cell.
-RADIUS_PER_SPACING = 2.3
-MAX_RADIUS = 1000.0  # m: a connectivity radius beyond this would join a whole domain into one clique
-# Allowed [lowest, highest] of the numeric fields a checkpoint stores; every type table holds
-# the kinematic (3) and soil (6) types a scene fills.
-SCHEMA_LIMITS = {
-    "history": (2, 20), "dim": (2, 2), "wall_clip": (0.0, 100.0), "particle_types": (PARTICLE_TYPE_SOIL + 1, 64),
-    "type_embedding": (1, 256), "frame_stride": (1, 16),
-}
-
-
-@dataclass(frozen=True)
-class FeatureSchema:
-    history: int = HISTORY  # positions per input window -> history - 1 velocities
-    dim: int = 2
-    wall_clip: float = 1.0  # wall distances / R are clipped to [-wall_clip, wall_clip]
-    particle_types: int = 9
-    type_embedding: int = 16
-    material_features: tuple[str, ...] = MATERIAL_FEATURE_NAMES
-    frame_stride: int = 1  # dataset frames per step (checkpoints without it: 1)
-
-    @property
-    def window_frames(self) -> int:
-        """Dataset frames one input window spans: (history - 1) x frame_stride + 1."""
-        return (self.history - 1) * self.frame_stride + 1
-
-    @property
-    def material_width(self) -> int:
-        return len(self.material_features)
-
-    @property
-    def node_width(self) -> int:
-        """Columns entering the node encoder."""
-        return (self.history - 1) * self.dim + 2 * self.dim + self.type_embedding + self.material_width
-
-    @property
-    def edge_width(self) -> int:
-        """Relative displacement / R (dim columns) and its length."""
-        return self.dim + 1
-
-    def with_material_features(self, names: tuple[str, ...]) -> "FeatureSchema":
-        return FeatureSchema(**{**asdict(self), "material_features": tuple(names)})
-
-    def to_dict(self) -> dict:
-        d = asdict(self)
-        d["material_features"] = list(self.material_features)
-        return d
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "FeatureSchema":
-        known = {f.name for f in fields(cls)}
-        kwargs = {k: v for k, v in d.items() if k in known}
-        if "material_features" in kwargs:
-            kwargs["material_features"] = tuple(kwargs["material_features"])
-        return cls(**kwargs)
-
-    @staticmethod
-    def problem(d: dict) -> str | None:
-        """The first stored field outside SCHEMA_LIMITS or naming an unknown material
-        feature, as a phrase, or None."""
-        for key, (lo, hi) in SCHEMA_LIMITS.items():
-            v = d.get(key, getattr(FeatureSchema, key))
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
-                return f"{key} = {v!r} is outside the allowed range [{lo:g}, {hi:g}]"
-        for key in ("history", "dim", "particle_types", "type_embedding", "frame_stride"):
-            if not isinstance(d.get(key, 0), int):
-                return f"{key} = {d[key]!r} must be a whole number"
-        names = d.get("material_features", MATERIAL_FEATURE_NAMES)
-        if not isinstance(names, (list, tuple)) or list(names) != list(MATERIAL_FEATURE_NAMES[: len(names)]) or not names:
-            return f"material_features = {names!r} must be [tan_phi] or [tan_phi, c_over_100kPa]"
-        return None
-
-    def difference(self, other: "FeatureSchema") -> str | None:
-        """The first field in which `other` differs, as a phrase, or None when equal."""
-        for f in fields(self):
-            mine, theirs = getattr(self, f.name), getattr(other, f.name)
-            if mine != theirs:
-                return f"{f.name} is {_show(mine)} in the model but {_show(theirs)} in the data"
-        return None
-
-
-def _show(value) -> str:
-    if isinstance(value, tuple):
-        return "[" + ", ".join(value) + "]"
-    return repr(value)
-
-
-def material_names_for_width(width: int) -> tuple[str, ...]:
-    """Names of the first `width` material features ([tan phi], [tan phi, c / 100 kPa])."""
-    return MATERIAL_FEATURE_NAMES[:width]
-
-
-# ----------------------------------------------------------------------------- material codec
-# A material enters the GNS as [tan phi, c / 100 kPa] (paper Table 1, note a); a base model
-# reads only the first column.
-
-
-def encode_material(friction_angle: float, cohesion: float) -> list[float]:
-    """[tan phi, c / 100 kPa] of one material (phi in degrees, c in kPa)."""
-    return [math.tan(math.radians(friction_angle)), cohesion / COHESION_SCALE]
-
-
-def decode_material(row) -> tuple[float, float]:
-    """(phi in degrees, c in kPa) of one feature row [tan phi] or [tan phi, c / 100 kPa];
-    c is 0 when the row has one column."""
-    phi = math.degrees(math.atan(float(row[0])))
-    c = float(row[1]) * COHESION_SCALE if len(row) > 1 else 0.0
-    return phi, c
-
-
-def decode_materials(features: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
-    """(phi [N] in degrees, c [N] in kPa or None for one column) of feature rows [N, k]."""
-    features = np.asarray(features)
-    phi = np.degrees(np.arctan(features[:, 0]))
-    return phi, features[:, 1] * COHESION_SCALE if features.shape[1] > 1 else None
+__all__ = ["FeatureSchema", "HISTORY", "SCHEMA_LIMITS", "encode_materials_torch", "material_names_for_width"]
 
 
 def encode_materials_torch(friction_angle: torch.Tensor, cohesion: torch.Tensor) -> torch.Tensor:

@@ -24,10 +24,10 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
+from runout.contract import FeatureSchema, spacing_for_radius
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.gns.graph import radius_graph
 from runout.gns.network import EncodeProcessDecode
-from runout.gns.schema import RADIUS_PER_SPACING, FeatureSchema
 
 
 @dataclass(frozen=True)
@@ -166,10 +166,10 @@ class Simulator(nn.Module):
     @property
     def point_spacing(self) -> float:
         """The lattice spacing (m) of the points the model was trained on: its data_ranges'
-        point_spacing_m, or radius / RADIUS_PER_SPACING for a checkpoint that records none.
+        point_spacing_m, or the spacing of its radius (runout.contract) for a checkpoint that records none.
         Scenes are filled at this spacing for the model (runout.gns.rollout.at_model_spacing)."""
         recorded = (self.data_ranges or {}).get("point_spacing_m")
-        return float(recorded) if recorded else self.radius / RADIUS_PER_SPACING
+        return float(recorded) if recorded else spacing_for_radius(self.radius)
 
     def forward(self, window, particle_type, material, bounds, graph=None, recompute_steps: bool = False) -> torch.Tensor:
         """Normalised acceleration [N, 2] from window [N, history, 2] (m), particle_type [N],

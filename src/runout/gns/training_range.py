@@ -21,8 +21,8 @@ import math
 
 import numpy as np
 
-from runout.defaults import PARTICLE_TYPE_KINEMATIC
-from runout.gns.schema import RADIUS_PER_SPACING, decode_materials
+from runout.contract import decode_materials, spacing_for_cells, spacing_for_radius
+from runout.defaults import PARTICLE_TYPE_KINEMATIC, POINTS_PER_CELL
 from runout.trajectory import Trajectory
 
 SPACING_TOLERANCE = 0.1  # relative difference of point spacing that is still "the same graph"
@@ -43,7 +43,7 @@ def measure(materials, particle_types, meta: dict, radius: float, source: str) -
     bounds = np.asarray(meta["bounds"], dtype=float)
     # the dataset's own spacing (2 x 2 points per cell), not the model's radius, which --radius may set apart
     data_radius = float(meta.get("default_connectivity_radius", radius))  # m
-    spacing = float(meta["cell_size"]) / 2 if "cell_size" in meta else data_radius / RADIUS_PER_SPACING
+    spacing = spacing_for_cells(float(meta["cell_size"])) if "cell_size" in meta else spacing_for_radius(data_radius)
     span = lambda parts: [float(min(p.min() for p in parts)), float(max(p.max() for p in parts))]  # noqa: E731
     return {
         "friction_angle_deg": span(phi) if phi else None,
@@ -119,4 +119,4 @@ def _spacing(traj: Trajectory, trained, what: str) -> list[str]:
     if not trained or spacing is None or math.isclose(spacing, trained, rel_tol=SPACING_TOLERANCE):
         return []
     return [f"the point spacing of {what}, {spacing:.3g} m, differs from the model's training spacing "
-            f"{trained:.3g} m (fill the scene with cell_size = {2 * trained:g} m)."]
+            f"{trained:.3g} m (fill the scene with cell_size = {POINTS_PER_CELL * trained:g} m)."]

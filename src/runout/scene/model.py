@@ -10,8 +10,8 @@ import math
 from dataclasses import dataclass, field, replace
 
 from runout import defaults
+from runout.contract import encode_material, spacing_for_cells
 from runout.errors import InputError
-from runout.gns.schema import encode_material
 from runout.scene.validation import MAX_FRAMES, validate_scene
 
 
@@ -28,7 +28,7 @@ class Domain:
 
     @property
     def point_spacing(self) -> float:
-        return self.cell_size / self.points_per_cell
+        return spacing_for_cells(self.cell_size, self.points_per_cell)
 
 
 @dataclass(frozen=True)

@@ -1,4 +1,5 @@
-"""One MPM run as `runout mpm` makes it: checks first, the run, then its files.
+"""One MPM run as `runout mpm` makes it: checks first, the run, then its files (the engine
+itself is runout.mpm).
 
 simulate and save_trajectory are looked up on their modules at call time, so a test can
 replace them there."""

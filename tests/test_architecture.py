@@ -1,0 +1,95 @@
+"""The layers of src/runout (docs/architecture.md): a module imports only from its own layer
+and the layers below it, and the scene and file layers load without torch."""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1] / "src" / "runout"
+
+# Bottom to top; a module belongs to the layer of the longest name here that it starts with.
+LAYERS = (
+    ("foundation", ("runout", "runout.errors", "runout.defaults", "runout.contract", "runout.npz", "runout.outputs")),
+    ("data", ("runout.scene", "runout.checks", "runout.simfiles", "runout.trajectory", "runout.dataset", "runout.metrics")),
+    ("engines", ("runout.mpm", "runout.gns")),
+    ("views", ("runout.plots", "runout.vtk")),
+    ("applications", ("runout.families", "runout.train", "runout.inverse", "runout.evaluate", "runout.compare",
+                      "runout.generate", "runout.demo", "runout.validate", "runout.validate_figures", "runout.mpm_run",
+                      "runout.gns_run")),
+    ("cli", ("runout.cli", "runout.__main__")),
+)
+
+
+def layer_of(module: str) -> int:
+    matches = [(len(name), rank) for rank, (_, names) in enumerate(LAYERS) for name in names
+               if module == name or module.startswith(name + ".")]
+    assert matches, f"{module} is in no layer; add it to LAYERS and docs/architecture.md"
+    return max(matches)[1]
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(PACKAGE.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _is_module(name: str) -> bool:
+    relative = Path(*name.split(".")[1:])
+    return (PACKAGE / relative).with_suffix(".py").is_file() or (PACKAGE / relative / "__init__.py").is_file()
+
+
+def _type_checking_only(tree: ast.Module) -> set[int]:
+    """ids of the import nodes under `if TYPE_CHECKING:` (never run, so never loaded)."""
+    skipped = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and getattr(node.test, "id", getattr(node.test, "attr", None)) == "TYPE_CHECKING":
+            skipped |= {id(n) for child in node.body for n in ast.walk(child)}
+    return skipped
+
+
+def imported_modules(path: Path) -> set[str]:
+    """Every runout module `path` imports, at the top or inside a function."""
+    tree = ast.parse(path.read_text())
+    skipped = _type_checking_only(tree)
+    found = set()
+    for node in ast.walk(tree):
+        if id(node) in skipped:
+            continue
+        if isinstance(node, ast.Import):
+            found |= {alias.name for alias in node.names if alias.name.split(".")[0] == "runout"}
+        elif isinstance(node, ast.ImportFrom) and node.level == 0 and (node.module or "").split(".")[0] == "runout":
+            for alias in node.names:
+                child = f"{node.module}.{alias.name}"
+                found.add(child if _is_module(child) else node.module)
+        elif isinstance(node, ast.ImportFrom) and node.level > 0:
+            raise AssertionError(f"{path}: use absolute imports (from runout... import ...)")
+    return found
+
+
+def test_no_module_imports_from_a_higher_layer():
+    upward = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        module = module_name(path)
+        for imported in sorted(imported_modules(path)):
+            if layer_of(imported) > layer_of(module):
+                upward.append(f"{module} ({LAYERS[layer_of(module)][0]}) imports {imported} ({LAYERS[layer_of(imported)][0]})")
+    assert not upward, "\n".join(upward)
+
+
+def test_the_layer_check_sees_imports_inside_functions(tmp_path):
+    source = tmp_path / "module.py"
+    source.write_text("def f():\n    from runout.cli import app\n    import runout.plots.frames\n")
+    assert imported_modules(source) == {"runout.cli.app", "runout.plots.frames"}
+    assert layer_of("runout.scene.model") < layer_of("runout.gns.rollout") < layer_of("runout.plots.frames") < layer_of("runout.cli.app")
+
+
+def test_the_scene_loads_without_torch():
+    code = "import runout.scene, sys; assert 'torch' not in sys.modules"
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_the_data_layer_loads_without_torch():
+    modules = ", ".join(name for layer in LAYERS[:2] for name in layer[1])
+    subprocess.run([sys.executable, "-c", f"import {modules}, sys; assert 'torch' not in sys.modules"], check=True)
