@@ -10,8 +10,9 @@ import torch
 
 from runout.inverse.memory import PeakMemory
 from runout.mpm import simulate
-from runout.mpm.differentiable import DifferentiableMpm, material_values
+from runout.mpm.differentiable import DifferentiableMpm
 from runout.mpm.mohr_coulomb import MaterialArrays, return_map
+from runout.mpm.setup import material_table
 from runout.scene import scene_from_dict
 from _scenes import COLUMN_BESIDE_BLOCK
 
@@ -30,7 +31,7 @@ def scene():
 
 def test_forward_is_the_mpm_run(scene):
     model = DifferentiableMpm(scene, FRAMES)
-    phi, c = (torch.tensor(v) for v in material_values(scene))
+    phi, c = (torch.tensor(v) for v in material_table(scene).T)
     with torch.no_grad():
         positions = model(phi, c).numpy()
     reference = simulate([scene], progress=False, frames=FRAMES[-1] + 1)[0].positions  # float32
@@ -42,7 +43,7 @@ def test_forward_is_the_mpm_run(scene):
 def test_ad_gradient_equals_central_differences(scene):
     """d(deposit loss)/d(phi, c) of both soils by reverse-mode AD against central differences (float64)."""
     model = DifferentiableMpm(scene, FRAMES)
-    phi0, c0 = material_values(scene)
+    phi0, c0 = material_table(scene).T
     with torch.no_grad():
         target = model(torch.tensor(phi0 + [4.0, -3.0, 0.0]), torch.tensor(c0 + [3.0, 5.0, 0.0]))
 
@@ -71,7 +72,7 @@ def test_compiled_is_the_same_run_and_gradient(scene):
     """compile=True (torch.compile of each frame's substeps; 2-4 minutes of compilation on a
     2-core CPU, seconds from torch's disk cache) gives the eager positions and gradient to rounding."""
     frames = [3]
-    phi0, c0 = material_values(scene)
+    phi0, c0 = material_table(scene).T
     results = []
     for compile in (False, True):
         model = DifferentiableMpm(scene, frames, compile=compile)
@@ -86,7 +87,7 @@ def test_compiled_is_the_same_run_and_gradient(scene):
 
 def peak_bytes(scene, frames: int, checkpoint: bool) -> int:
     model = DifferentiableMpm(scene, [frames], checkpoint=checkpoint)
-    phi, c = (torch.tensor(v, requires_grad=True) for v in material_values(scene))
+    phi, c = (torch.tensor(v, requires_grad=True) for v in material_table(scene).T)
     with PeakMemory("cpu") as memory:
         model(phi, c)[-1].square().sum().backward()
     return memory.peak_bytes

@@ -13,7 +13,8 @@ import pytest
 import torch
 
 from runout.mpm import simulate
-from runout.mpm.batch import build_batch, relax_geostatic
+from runout.mpm.batch import relax_geostatic
+from runout.mpm.setup import build_batch
 from runout.scene import scene_from_dict, scene_to_dict
 
 RHO_G = 1800.0 * 9.81  # unit weight, N/m^3
@@ -193,7 +194,8 @@ def test_runout_converges_in_time_step_and_point_density():
 def test_flip_share_wave_is_a_fixed_rate_in_time():
     """flip = "wave": the sub-grid part of a point's velocity decays as exp(-t c_p / dx), so two
     substeps of dt/2 keep what one of dt keeps; a number stays a fixed share per substep."""
-    from runout.mpm.solver import flip_share, p_wave_speed
+    from runout.mpm.setup import p_wave_speed
+    from runout.mpm.solver import flip_share
 
     scene = column(16.0, 16.0, frames=2)
     batch = build_batch([scene], torch.device("cpu"), torch.float64)

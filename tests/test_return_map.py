@@ -94,7 +94,7 @@ def test_dilute_points_carry_no_stress_and_take_it_again_when_packed():
     """A point spread over more than twice its packed area has lost its contacts: after a
     substep it carries no stress (a cohesive column on a rough base otherwise grew points to
     20,000 times their area, with stress, and blew up); packed points keep theirs."""
-    from runout.mpm.batch import build_batch
+    from runout.mpm.setup import build_batch
     from runout.mpm.solver import substep
     from runout.scene import scene_from_dict
 

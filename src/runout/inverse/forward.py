@@ -12,8 +12,9 @@ from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout
 from runout.gns.simulator import Simulator
 from runout.inverse.observation import Observation
-from runout.inverse.problem import ForwardModel, InverseProblem, material_table
+from runout.inverse.problem import ForwardModel, InverseProblem
 from runout.inverse.spec import InverseSpec
+from runout.mpm.setup import material_table
 
 
 def gns_forward(

@@ -15,9 +15,10 @@ import torch
 
 from runout.errors import InputError, RunFailed
 from runout.inverse.observation import Observation
-from runout.inverse.problem import Evaluation, material_table, timed_evaluation, weighted_mse
+from runout.inverse.problem import Evaluation, timed_evaluation, weighted_mse
 from runout.inverse.spec import InverseSpec
 from runout.mpm.budget import GIB, check_budget, device_memory
+from runout.mpm.setup import material_table
 
 STATE_BYTES = 13 * 8  # x, v, C, stress, volume per point in float64: kept at each frame for the backward pass
 

@@ -42,11 +42,6 @@ def weighted_mse(predicted: torch.Tensor, target: torch.Tensor, weights: torch.T
     return (squared * weights).sum(dim=1).mean() / weights.sum()
 
 
-def material_table(scene) -> np.ndarray:
-    """[M, 2] (phi in degrees, c in kPa) per material, in scene.material_names order."""
-    return np.array([[m.friction_angle, m.cohesion] for m in scene.materials.values()], dtype=np.float64)
-
-
 class InverseProblem:
     def __init__(
         self,

@@ -15,7 +15,8 @@ from collections import defaultdict
 import torch
 
 from runout import checks
-from runout.mpm.batch import build_batch, run_batch, substeps_per_frame
+from runout.mpm.batch import run_batch
+from runout.mpm.setup import build_batch, substeps_per_frame
 from runout.scene import Scene
 from runout.trajectory import Trajectory
 

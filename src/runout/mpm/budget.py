@@ -19,8 +19,7 @@ from dataclasses import dataclass
 import torch
 
 from runout.errors import InputError
-from runout.mpm.batch import substeps_per_frame
-from runout.mpm.solver import PAD
+from runout.mpm.setup import grid_shape, substeps_per_frame
 from runout.scene import Scene, fill_points
 
 GIB = 1024**3
@@ -48,7 +47,7 @@ class Estimate:
 def estimate(scenes: list[Scene], frames: int | None = None) -> Estimate:
     """Points and substeps of every scene as `runout.mpm.simulate` would run them together."""
     points = sum(len(fill_points(s)) for s in scenes)
-    nodes = sum(_nodes(s) for s in scenes)
+    nodes = sum(math.prod(grid_shape(s)) for s in scenes)
     n_frames = max(frames if frames is not None else s.time.frames for s in scenes)
     per_frame = max(substeps_per_frame(s) for s in scenes)
     return Estimate(
@@ -56,11 +55,6 @@ def estimate(scenes: list[Scene], frames: int | None = None) -> Estimate:
         device_bytes=points * BYTES_PER_POINT + nodes * BYTES_PER_NODE,
         host_bytes=points * n_frames * BYTES_PER_POINT_FRAME + BASE_BYTES,
     )
-
-
-def _nodes(scene: Scene) -> int:
-    d = scene.domain
-    return (math.ceil(d.width / d.cell_size - 1e-9) + 1 + 2 * PAD) * (math.ceil(d.height / d.cell_size - 1e-9) + 1 + 2 * PAD)
 
 
 def host_memory() -> int:

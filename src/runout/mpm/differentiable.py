@@ -6,9 +6,10 @@
 Reverse-mode AD runs through the whole MPM: the K0 start (K0 = 1 - sin phi unless a material
 gives k0), the geostatic relaxation (elastic-plastic, points held), every substep's Jaumann
 trial, Mohr-Coulomb return and tension cut-off (T = min(T_given, c / tan phi)), and the frame
-outputs. The batch is built once from the scene: the substep count, the relaxation length and
-the grid follow from stiffness, density and geometry, never from phi or c, so they stay fixed
-while an optimiser moves the strengths.
+outputs. The batch is built once from the scene by runout.mpm.setup, as for the batched run,
+and so are the K0 start and the materials, from the strengths given here. The substep count,
+the relaxation length and the grid follow from stiffness, density and geometry, never from phi
+or c, so they stay fixed while an optimiser moves the strengths.
 
 Memory stays bounded (torch.utils.checkpoint, reentrant): the forward keeps only the state
 (x, v, C, stress, volume: 13 numbers per point) at each output frame and at each relaxation
@@ -26,16 +27,15 @@ seconds in a later process from torch's on-disk compile cache.
 
 from __future__ import annotations
 
-import math
 from dataclasses import replace
 from functools import partial
 
-import numpy as np
 import torch
 from torch.utils.checkpoint import checkpoint
 
-from runout.mpm.batch import build_batch, relax_geostatic
+from runout.mpm.batch import relax_geostatic
 from runout.mpm.mohr_coulomb import MaterialArrays
+from runout.mpm.setup import Strengths, build_batch
 from runout.mpm.solver import Points, substep
 from runout.scene import Scene
 
@@ -56,16 +56,8 @@ class DifferentiableMpm:
         self.frames = [int(f) for f in frames]
         self.batch = build_batch([scene], torch.device(device), dtype)
         pts = self.batch.pts
-        moving, _, material_id = self.batch.order[0]
-        self.material_id = torch.as_tensor(material_id[moving], device=pts.x.device)  # per moving point
-        mats = [scene.materials[n] for n in scene.material_names]
+        moving = self.batch.order[0][0]
         opt = dict(dtype=dtype, device=pts.x.device)
-        self.tension_given = torch.tensor([m.tension_cutoff * 1e3 for m in mats], **opt)  # Pa
-        self.k0_given = torch.tensor(
-            [m.poisson_ratio / (1 - m.poisson_ratio) if m.model == "elastic" else (m.k0 if m.k0 is not None else math.nan)
-             for m in mats], **opt,
-        )  # NaN: K0 = 1 - sin phi, follows phi
-        self.sigma_v = -pts.stress[:, 1].clone()  # Pa, overburden of the K0 start
         self.moving_index = torch.as_tensor(self.batch.moving_index[0], device=pts.x.device)
         self.template = torch.zeros(len(moving), 2, **opt)
         self.template[torch.as_tensor(~moving)] = torch.as_tensor(self.batch.fixed_xy[0], **opt)
@@ -75,30 +67,17 @@ class DifferentiableMpm:
     def substeps_per_frame(self) -> int:
         return self.batch.n_sub
 
-    def materials(self, phi: torch.Tensor, c: torch.Tensor) -> MaterialArrays:
-        """Per-point constants from per-material phi (degrees) and c (kPa); differentiable."""
-        base = self.batch.pts.mat
-        rad = torch.deg2rad(phi)
-        tan_safe = torch.tan(torch.where(rad > 0, rad, torch.ones_like(rad)))
-        cut = torch.where(rad > 0, torch.minimum(self.tension_given, c * 1e3 / tan_safe), self.tension_given)
-        m = self.material_id
-        return MaterialArrays(
-            lam=base.lam, shear=base.shear, sin_phi=torch.sin(rad)[m], cos_phi=torch.cos(rad)[m],
-            cohesion=(c * 1e3)[m], tension=cut[m], plastic=base.plastic,
-        )
-
-    def initial_points(self, phi: torch.Tensor, mat: MaterialArrays) -> Points:
-        """The K0 start (compression negative, Pa) with these materials, before relaxation."""
-        k0 = torch.where(torch.isnan(self.k0_given), 1 - torch.sin(torch.deg2rad(phi)), self.k0_given)[self.material_id]
-        sv = self.sigma_v
-        stress = torch.stack((-k0 * sv, -sv, torch.zeros_like(sv), -k0 * sv), dim=1)
+    def initial_points(self, phi: torch.Tensor, c: torch.Tensor) -> Points:
+        """The K0 start and materials of these strengths (phi [M] degrees, c [M] kPa), before relaxation."""
+        strengths = Strengths.of(phi, c)
+        table, dtype = self.batch.materials, self.batch.pts.x.dtype
         start = {name: t.clone() for name, t in self.start.items()}
-        return replace(self.batch.pts, mat=mat, **{**start, "stress": stress})
+        stress = table.start_stress(self.batch.sigma_v, strengths, dtype)
+        return replace(self.batch.pts, mat=table.arrays(strengths, dtype), **{**start, "stress": stress})
 
     def __call__(self, phi: torch.Tensor, c: torch.Tensor) -> torch.Tensor:
         """Positions [F, N, 2] (m) at the frames, differentiable w.r.t. phi [M] and c [M]."""
-        mat = self.materials(phi, c)
-        pts = self.initial_points(phi, mat)
+        pts = self.initial_points(phi, c)
         batch = replace(self.batch, pts=pts)
         if len(pts.x):
             relax_geostatic(batch, step=partial(_relaxation_substep, keep_start_only=self.checkpoint,
@@ -166,9 +145,3 @@ def _relaxation_substep(pts: Points, grid, dt: float, flip: float = 0.0, damping
                         keep_start_only: bool = True, advance=substeps) -> None:
     """relax_geostatic's step, kept only by its start state (keep_start_only)."""
     _advance(pts, grid, dt, flip, damping, 1, keep_start_only, advance)
-
-
-def material_values(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """(phi [M] degrees, c [M] kPa) of the scene's materials in material_names order."""
-    mats = [scene.materials[n] for n in scene.material_names]
-    return np.array([m.friction_angle for m in mats]), np.array([m.cohesion for m in mats])

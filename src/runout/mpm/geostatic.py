@@ -3,15 +3,17 @@
 Overburden is summed along the vertical ray through each point up to the local free
 surface (the top of the contiguous column of points it belongs to), not from the global
 top (a known mistake of some codes). sigma_xx = sigma_zz = K0 sigma_v with K0 = 1 - sin(phi)
-(Jaky) unless a material gives k0; elastic materials use nu / (1 - nu). A column that rests
-on nothing (a block in flight) starts stress-free. Compression negative, Pa.
+(Jaky) unless a material gives k0; elastic materials use nu / (1 - nu) (the K0 of each point
+is made by runout.mpm.setup.MaterialTable). A column that rests on nothing (a block in
+flight) starts stress-free. Compression negative, Pa.
 """
 
 from __future__ import annotations
 
 import numpy as np
+import torch
 
-from runout.defaults import GRAVITY  # noqa: F401  (m/s^2; solver and batch import it from here)
+from runout.defaults import GRAVITY  # noqa: F401  (m/s^2; the MPM modules import it from here)
 
 
 def vertical_stress(
@@ -45,6 +47,6 @@ def vertical_stress(
     return out
 
 
-def initial_stress(sigma_v: np.ndarray, k0: np.ndarray) -> np.ndarray:
-    """Stress [P, 4] = (sxx, syy, sxy, szz), compression negative."""
-    return np.stack((-k0 * sigma_v, -sigma_v, np.zeros_like(sigma_v), -k0 * sigma_v), axis=1)
+def initial_stress(sigma_v: torch.Tensor, k0: torch.Tensor) -> torch.Tensor:
+    """Stress [P, 4] = (sxx, syy, sxy, szz) from sigma_v [P] >= 0 and K0 [P], compression negative."""
+    return torch.stack((-k0 * sigma_v, -sigma_v, torch.zeros_like(sigma_v), -k0 * sigma_v), dim=1)

@@ -1,5 +1,6 @@
-"""Explicit plane-strain MPM, batched over scenes in one flat point array.
+"""Explicit plane-strain MPM, batched over scenes in one flat point array: the state and one substep.
 
+runout.mpm.setup makes the state (Grid, Points) from scenes; this module only advances it.
 The scheme: quadratic B-spline shape functions with APIC transfers (MLS-MPM force form) and
 a FLIP share that is a fixed rate in time (flip_share), update-stress-last:
 p2g -> grid_update -> g2p -> update_stress. Units: m, s, kg per metre of thickness, Pa.
@@ -10,7 +11,6 @@ scenes and no scene ever touches another's nodes.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 import torch
@@ -20,7 +20,7 @@ from runout.mpm.geostatic import GRAVITY
 from runout.mpm.mohr_coulomb import MaterialArrays, mobilised, update_stress
 
 PAD = 2  # grid nodes beyond each wall; quadratic B-splines reach 1.5 cells
-_OFFSETS = [(a, b) for a in range(3) for b in range(3)]
+STENCIL = [(a, b) for a in range(3) for b in range(3)]  # node index offsets of the 3 x 3 stencil
 
 
 @dataclass
@@ -77,7 +77,7 @@ def stencil(x: torch.Tensor, node_base: torch.Tensor, ny: torch.Tensor, offsets:
 
     node_base [P] is the first node of the point's scene, ny [P] its nodes per grid column,
     offsets [P, 9] = a * ny + b for the stencil's (a, b). The node-minus-point offset of
-    stencil node k is (OFFSETS[k] - fx) * dx."""
+    stencil node k is (STENCIL[k] - fx) * dx."""
     xg = x * (1.0 / dx)
     base = torch.floor(xg - 0.5)
     fx = xg - base  # in [0.5, 1.5)
@@ -86,18 +86,6 @@ def stencil(x: torch.Tensor, node_base: torch.Tensor, ny: torch.Tensor, offsets:
     cell = base.long() + PAD
     ids = (node_base + cell[:, 0] * ny + cell[:, 1])[:, None] + offsets
     return ids, w, fx
-
-
-def stencil_offsets(ny: torch.Tensor) -> torch.Tensor:
-    """[P, 9] node-id offsets a * ny + b of the 3 x 3 stencil for points with ny nodes per column."""
-    a = torch.tensor([a for a, _ in _OFFSETS], device=ny.device)
-    b = torch.tensor([b for _, b in _OFFSETS], device=ny.device)
-    return a[None, :] * ny[:, None] + b[None, :]
-
-
-def node_offsets(dx: float, like: torch.Tensor) -> torch.Tensor:
-    """[9, 2] stencil node offsets in metres (node index offset times dx)."""
-    return torch.tensor(_OFFSETS, dtype=like.dtype, device=like.device) * dx
 
 
 def p2g(pts: Points, grid: Grid, dt: float):
@@ -232,6 +220,7 @@ def velocity_gradient(pts: Points, m_grid: torch.Tensor, cache) -> torch.Tensor:
 
 
 def substep(pts: Points, grid: Grid, dt: float, flip: float | str = FLIP_WAVE, damping: float = 0.0) -> None:
+    """Advance every point by dt seconds in place: p2g, grid_update, g2p, then stress and volume."""
     m_grid, p_grid, cache = p2g(pts, grid, dt)
     v_grid, v_before = grid_update(m_grid, p_grid, grid, dt, damping)
     g2p(pts, v_grid, v_before, cache, grid, dt, flip_share(pts, dt, flip))
@@ -250,57 +239,3 @@ def substep(pts: Points, grid: Grid, dt: float, flip: float | str = FLIP_WAVE, d
     # the shear profile it carried over the base nodes and glided on (docs/scene-format.md)
     unpacked = pts.volume > LOOSE * pts.rest_volume
     pts.C = torch.where(unpacked[:, None, None], torch.zeros_like(pts.C), pts.C)
-
-
-def energies(pts: Points, n_scenes: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """Kinetic and gravitational potential energy (J per metre of thickness) per scene."""
-    ke = torch.zeros(n_scenes, dtype=pts.x.dtype, device=pts.x.device)
-    pe = torch.zeros_like(ke)
-    ke.index_add_(0, pts.scene, 0.5 * pts.mass * (pts.v**2).sum(1))
-    pe.index_add_(0, pts.scene, pts.mass * GRAVITY * pts.x[:, 1])
-    return ke, pe
-
-
-def stable_dt(dx: float, p_wave_speed: float, max_speed: float, cfl: float) -> float:
-    """CFL time step dx / (c_p + v_max) times the Courant number (s)."""
-    return cfl * dx / (p_wave_speed + max_speed)
-
-
-def p_wave_speed(youngs_pa: float, nu: float, density: float) -> float:
-    m = youngs_pa * (1 - nu) / ((1 + nu) * (1 - 2 * nu))  # constrained modulus, Pa
-    return math.sqrt(m / density)
-
-
-CONTACT_SHARE = 0.4  # a node is in contact with fixed ground from this share of a full node's fixed mass
-
-
-def fixed_ground_contact(mass, ids, w, size: int, full_node_mass: float, shapes, offsets, edges, dx: float):
-    """Contact constraint and stuck nodes of the fixed ground (computed once: it never moves).
-
-    A node is in contact when the fixed points give it at least CONTACT_SHARE of a full node's
-    mass. Its outward normal is that of the nearest exposed edge of the fixed polygons (edges
-    not shared with other fixed ground nor lying on a wall): the exact surface, where a normal
-    from the staircase of fixed points leaned 1 degree off a 30 degree plane and let a block
-    sink into it and slide 5 % too far. Nodes more than 2.5 cells inside the ground, which no
-    moving point's stencil (1.5 cells) reaches, are held still. shapes [(nx, ny)], offsets and
-    edges [(a [E, 2], b [E, 2], normal [E, 2]) in metres] describe each scene."""
-    m_fix = torch.zeros(size, dtype=w.dtype, device=w.device)
-    m_fix.index_add_(0, ids.reshape(-1), (mass[:, None] * w).reshape(-1))
-    contact = torch.nonzero(m_fix >= CONTACT_SHARE * full_node_mass).squeeze(1)
-    normal = torch.zeros(len(contact), 2, dtype=w.dtype, device=w.device)
-    depth = torch.full((len(contact),), math.inf, dtype=w.dtype, device=w.device)
-    for (nx, ny), off, (a, b, n) in zip(shapes, offsets, edges):
-        mine = (contact >= off) & (contact < off + nx * ny)
-        if not mine.any() or len(a) == 0:
-            continue
-        local = contact[mine] - off
-        pos = torch.stack(((local // ny - PAD) * dx, (local % ny - PAD) * dx), 1).to(w.dtype)
-        a, b, n = (torch.as_tensor(v, dtype=w.dtype, device=w.device) for v in (a, b, n))
-        ab = b - a
-        t = (((pos[:, None, :] - a[None]) * ab[None]).sum(-1) / (ab * ab).sum(-1)[None]).clamp(0.0, 1.0)
-        dist = (pos[:, None, :] - (a[None] + t[..., None] * ab[None])).norm(dim=-1)  # [K, E]
-        nearest = dist.argmin(1)
-        normal[mine] = n[nearest]
-        depth[mine] = dist.gather(1, nearest[:, None]).squeeze(1)
-    deep = depth > 2.5 * dx
-    return contact[~deep], normal[~deep], contact[deep]

@@ -6,7 +6,6 @@ Young's modulus, kg/m^3 for density. Defaults come from runout.defaults.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, replace
 
 from runout import defaults
@@ -53,12 +52,6 @@ class Material:
     density: float = defaults.DENSITY  # kg/m^3
     k0: float | None = None  # lateral earth-pressure coefficient; default 1 - sin(phi)
     tension_cutoff: float = defaults.TENSION_CUTOFF  # kPa, capped at c / tan(phi)
-
-    @property
-    def k0_value(self) -> float:
-        if self.k0 is not None:
-            return self.k0
-        return 1.0 - math.sin(math.radians(self.friction_angle))
 
     def features(self) -> list[float]:
         """GNS material features [tan(phi), c / 100 kPa] (paper Table 1, note a)."""
