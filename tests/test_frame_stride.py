@@ -46,7 +46,7 @@ def test_windows_at_stride_two_start_at_every_frame(tmp_path):
     sims = Simulations(data / "train.npz", torch.device("cpu"), rest_windows=False).with_stride(2)
     assert sims.n_windows == 2 * (20 - 6 * 2)  # starts 0..7 of each simulation
     positions = torch.from_numpy(read_simulations(data / "train.npz")[1][0])
-    window, future, _, _ = sims._window(8 + 3)  # the second simulation, start frame 3
+    window, future, _, _, _ = sims._window(8 + 3)  # the second simulation, start frame 3
     torch.testing.assert_close(window, positions[3:14:2].transpose(0, 1))  # frames 3, 5, ..., 13
     torch.testing.assert_close(future[:, -1], positions[15])
 
@@ -56,10 +56,10 @@ def test_windows_at_rest_start_before_frame_zero_at_stride_two(tmp_path):
     sims = Simulations(data / "train.npz", torch.device("cpu")).with_stride(2)
     assert sims.n_windows == 2 * (20 - 6 * 2 + 5 * 2)  # starts -10..7 of each simulation
     positions = torch.from_numpy(read_simulations(data / "train.npz")[1][0])
-    window, future, _, _ = sims._window(18)  # the second simulation's first window: the scene at rest
+    window, future, _, _, _ = sims._window(18)  # the second simulation's first window: the scene at rest
     torch.testing.assert_close(window, positions[[0] * 6].transpose(0, 1))
     torch.testing.assert_close(future[:, -1], positions[2])
-    window, future, _, _ = sims._window(18 + 7)  # start frame -3: frames 0, 0, 1, 3, 5, 7
+    window, future, _, _, _ = sims._window(18 + 7)  # start frame -3: frames 0, 0, 1, 3, 5, 7
     torch.testing.assert_close(window, positions[[0, 0, 1, 3, 5, 7]].transpose(0, 1))
     torch.testing.assert_close(future[:, -1], positions[9])
 

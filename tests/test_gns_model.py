@@ -204,3 +204,24 @@ def test_the_moving_weight_counts_moving_points_that_many_times():
     predicted, target = torch.zeros((3, 2)), torch.tensor([[1.0, 0.0], [2.0, 0.0], [5.0, 0.0]])
     assert Simulator.loss(predicted, target, case, weights).item() == pytest.approx((1.0 + 4.0 * 4.0) / 5.0)
     assert Simulator.loss(predicted, target, case).item() == pytest.approx((1.0 + 4.0) / 2.0)
+
+
+def test_held_positions_of_the_scene_at_rest_get_no_noise():
+    window = torch.zeros((4000, 6, 2))
+    held = torch.tensor([6, 4, 1, 0]).repeat_interleave(1000)
+    noise = random_walk_noise(window, 0.1, torch.ones(4000, dtype=torch.bool), torch.Generator().manual_seed(0), held)
+    assert torch.all(noise[:1000] == 0)  # all six held: the rollout's very first step
+    assert torch.all(noise[1000:2000, :4] == 0) and torch.all(noise[1000:2000, 4:] != 0)
+    velocity = noise[1000:2000, -1] - noise[1000:2000, -2]  # two increments of std 0.1 / sqrt(5) since the rest
+    assert velocity.std().item() == pytest.approx(0.1 * (2 / 5) ** 0.5, rel=0.1)
+    assert torch.equal(noise[2000:3000] != 0, noise[3000:] != 0)  # held 1 = the first position, never noised
+    last = noise[3000:, -1] - noise[3000:, -2]
+    assert last.std().item() == pytest.approx(0.1, rel=0.1)
+
+
+def test_a_window_knows_how_many_of_its_positions_are_the_scene_at_rest(tmp_path):
+    from runout.gns.samples import Simulations
+    from test_gns_synthetic import write_dataset
+
+    sims = Simulations(write_dataset(tmp_path / "data", frames=20, n_train=1) / "train.npz", torch.device("cpu"))
+    assert [sims._window(k)[4] for k in range(8)] == [6, 5, 4, 3, 2, 1, 0, 0]

@@ -66,7 +66,7 @@ def test_windows_for_two_pushforward_steps_leave_room_for_the_true_frames(tmp_pa
     positions = torch.from_numpy(read_simulations(data / "train.npz")[1][0])
     last = 2 * starts - 1  # the second simulation's last start frame, starts - 1
     t = starts - 1
-    window, future, _, _ = sims._window(last, 2)
+    window, future, _, _, _ = sims._window(last, 2)
     torch.testing.assert_close(window, positions[t : t + 6 * stride : stride].transpose(0, 1), rtol=0, atol=0)
     torch.testing.assert_close(future, positions[t + 6 * stride :: stride].transpose(0, 1), rtol=0, atol=0)
     assert t + 8 * stride == 19  # the target is the simulation's last frame
@@ -87,7 +87,7 @@ def tiny_simulator(noise: float = 0.0) -> Simulator:
 def test_an_unrolled_window_is_the_models_rollout_and_its_target_the_acceleration_to_the_true_frame(tmp_path):
     data = write_dataset(tmp_path / "data")
     sims = Simulations(data / "train.npz", torch.device("cpu"))
-    window, future, ptype, material = sims._window(5, 2)
+    window, future, ptype, material, _ = sims._window(5, 2)
     case = Case.of(ptype, torch.tensor(read_metadata(data)["bounds"]))
     simulator = tiny_simulator()
     produced = simulator.pushforward(window, 2, ptype, material, case)

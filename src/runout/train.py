@@ -67,6 +67,7 @@ class TrainConfig:
     lr_decay_steps: float = 5e6
     noise: float = 0.3  # velocity noise std as a fraction of the data's velocity std (m per step / m per step)
     rest_windows: bool = True  # also train on windows that start before frame 0 (a scene at rest)
+    exact_rest: bool = False  # no noise on the held copies of frame 0 in a window (a rollout starts from them exactly)
     static_tail: int | None = None  # frames kept after a simulation's flow stops (None: all)
     moving_weight: float = 1.0  # loss weight of a point moving faster than MOVING_SPEED against 1 for one that does not
     seed: int = 0
@@ -291,7 +292,8 @@ def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> to
         window = simulator.pushforward(
             batch.window, batch.unroll, batch.particle_type, batch.material, case, batch.graph
         )
-    noisy, target = simulator.training_inputs(window, batch.future[:, -1], case, noise_gen)
+    held = (batch.held - batch.unroll).clamp(min=0) if cfg.exact_rest and batch.held is not None else None
+    noisy, target = simulator.training_inputs(window, batch.future[:, -1], case, noise_gen, held)
     with autocast:  # through `model`, the DDP wrapper under torchrun, so gradients synchronise
         predicted = model(noisy, batch.particle_type, batch.material, case.bounds, batch.graph, cfg.checkpoint_layers)
     loss = simulator.loss(predicted, target, case, _moving_weights(batch, cfg.moving_weight, data.frame_dt * data.stride))

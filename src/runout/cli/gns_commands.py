@@ -36,6 +36,7 @@ def train(
     pushforward: int = typer.Option(TrainConfig.pushforward, "--pushforward", help="Pushforward training, N = 0-10: each step rolls the model out n steps without gradient, n uniform in 0..N per step, and trains on the window it made (0: one-step training)."),
     noise: float = typer.Option(TrainConfig.noise, "--noise", help="Velocity noise std of the inputs, as a fraction of the data's velocity std (mean of x and y, m per step); docs/training.md gives the pilots behind the default."),
     rest_windows: bool = typer.Option(TrainConfig.rest_windows, "--rest-windows/--no-rest-windows", help="Also train on windows that start before frame 0 (the scene at rest, where every rollout starts)."),
+    exact_rest: bool = typer.Option(TrainConfig.exact_rest, "--exact-rest/--noisy-rest", help="Put no noise on a window's held copies of frame 0 (a rollout starts from the scene at rest exactly; the noise walk starts with its first step)."),
     moving_weight: float = typer.Option(TrainConfig.moving_weight, "--moving-weight", help="Loss weight of a point moving faster than 0.25 m/s over its target step, against 1 for a slower one (1: every point the same)."),
     static_tail: int = typer.Option(TrainConfig.static_tail, "--static-tail", help="Train only up to this many frames after a simulation's flow stops (soil slower than 0.05 m/s); default: every frame."),
     latent: int = typer.Option(NetworkConfig.latent, "--latent", help="Latent size of nodes and edges."),
@@ -59,7 +60,7 @@ def train(
 
     cfg = TrainConfig(
         data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise=noise,
-        rest_windows=rest_windows, static_tail=static_tail, moving_weight=moving_weight,
+        rest_windows=rest_windows, exact_rest=exact_rest, static_tail=static_tail, moving_weight=moving_weight,
         seed=seed, device=device, resume=resume, init=init,
         network=NetworkConfig(latent=latent, hidden=hidden, message_passing_steps=message_passing),
         save_every=save_every, log_every=log_every, valid_every=valid_every,

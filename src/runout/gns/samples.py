@@ -41,6 +41,7 @@ class TrainingBatch:
     particle_type: torch.Tensor  # [N]
     material: torch.Tensor  # [N, k]
     graph: torch.Tensor  # [N] graph index within the batch
+    held: torch.Tensor | None = None  # [N] leading window positions that are frame 0 held (the scene at rest)
 
     @property
     def unroll(self) -> int:
@@ -153,18 +154,21 @@ class Simulations:
         """`batch_size` windows drawn uniformly from those with room for `unroll` pushforward steps."""
         picks = torch.randint(self.n_windows_for(unroll), (batch_size,), generator=generator).tolist()
         parts = [self._window(k, unroll) for k in picks]
-        window, future, ptype, material = (torch.cat(x) for x in zip(*parts))
+        window, future, ptype, material = (torch.cat(x) for x in list(zip(*parts))[:4])
         graph = torch.cat([torch.full((len(p[0]),), g, device=window.device) for g, p in enumerate(parts)])
-        return TrainingBatch(window, future, ptype, material, graph)
+        held = torch.cat([torch.full((len(p[0]),), p[4], device=window.device) for p in parts])
+        return TrainingBatch(window, future, ptype, material, graph, held)
 
     def _window(self, k: int, unroll: int = 0):
-        """(window [N, history, 2], future [N, unroll + 1, 2], particle_type, material) of window k."""
+        """(window [N, history, 2], future [N, unroll + 1, 2], particle_type, material, held) of
+        window k; held: how many of its leading positions are frame 0 (0 for a start after it)."""
         first = self._windows(unroll)
         sim = bisect.bisect_right(first, k) - 1
         t = k - first[sim] + self.first_start  # start frame; frame 0 stands for the frames before it
         index = (t + self.stride * torch.arange(self.history + unroll + 1)).clamp(min=0)
         frames = self.positions[sim][index.to(self.positions[sim].device)].transpose(0, 1)  # [N, history + unroll + 1, 2]
-        return frames[:, : self.history], frames[:, self.history :], self.particle_type[sim], self.material[sim]
+        held = int((index[: self.history] == 0).sum())
+        return frames[:, : self.history], frames[:, self.history :], self.particle_type[sim], self.material[sim], held
 
 
 def _last_moving_frame(positions: torch.Tensor, particle_type: torch.Tensor, still: float) -> int:

@@ -218,10 +218,12 @@ class Simulator(nn.Module):
             window = torch.cat([window[:, 1:], nxt[:, None]], dim=1)
         return window
 
-    def training_inputs(self, window, next_position, case: Case, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
+    def training_inputs(self, window, next_position, case: Case, generator: torch.Generator,
+                        held: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
         """(noisy window [N, history, 2] m, normalised noise-corrected target acceleration
-        [N, 2]): random-walk noise of std stats.noise_std on the moving points' inputs."""
-        noise = random_walk_noise(window, self.stats.noise_std, case.movable, generator)
+        [N, 2]): random-walk noise of std stats.noise_std on the moving points' inputs, none
+        on the `held` [N] leading positions that are the scene at rest (exact in a rollout)."""
+        noise = random_walk_noise(window, self.stats.noise_std, case.movable, generator, held)
         noisy = window + noise
         return noisy, self.normalise_acceleration(corrected_target(noisy, next_position, noise))
 
@@ -234,13 +236,18 @@ class Simulator(nn.Module):
         return (error * w).sum() / w.sum().clamp(min=1e-12)
 
 
-def random_walk_noise(window: torch.Tensor, noise_std: float, movable: torch.Tensor, generator: torch.Generator):
+def random_walk_noise(window: torch.Tensor, noise_std: float, movable: torch.Tensor, generator: torch.Generator,
+                      held: torch.Tensor | None = None):
     """Position noise [N, history, 2] (m) whose velocities are a random walk: each of the
     history - 1 velocity increments ~ N(0, noise_std^2 / (history - 1)), so the last input
     velocity carries noise of std noise_std; the first position is untouched and kinematic
-    points get none."""
+    points get none. With held [N], a point's first held positions (the scene at rest, which a
+    rollout starts from exactly) get none either: the walk starts at the last of them, as a
+    rollout's error starts growing only with its first step."""
     n, history, dim = window.shape
     step = torch.randn((n, history - 1, dim), generator=generator, device=window.device, dtype=window.dtype)
+    if held is not None:  # increment i moves position i + 1: none while that position is still held
+        step = step * (torch.arange(1, history, device=window.device)[None, :, None] >= held[:, None, None])
     velocity_noise = torch.cumsum(step * (noise_std / (history - 1) ** 0.5), dim=1)
     position_noise = torch.cat([torch.zeros_like(window[:, :1]), torch.cumsum(velocity_noise, dim=1)], dim=1)
     return position_noise * movable[:, None, None]
