@@ -39,7 +39,7 @@ class Normalisation:
     vel_std: tuple[float, float]
     acc_mean: tuple[float, float]  # m / step^2
     acc_std: tuple[float, float]
-    noise_std: float  # m / step: velocity noise (paper 0.067 m/s x 0.0375 s = 2.5e-3 m per 1-frame step)
+    noise_std: float  # m / step: velocity noise (runout train --noise times the data's velocity std)
 
     @classmethod
     def from_metadata(cls, meta: dict, noise_std: float) -> "Normalisation":
