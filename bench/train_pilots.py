@@ -54,6 +54,8 @@ PRESETS: dict[str, list[str]] = {
     **{f"c-noise{n}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n] for n in ("0.1", "0.3", "0.6")},
     **{f"c-noise{n}-mw4": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--moving-weight", "4"]
        for n in ("0.1", "0.3", "0.6")},
+    **{f"x-noise{n}-exact": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--exact-rest"]
+       for n in ("0.1", "0.3", "0.6")},
     **{f"c-noise{n}-stride2": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--frame-stride", "2"]
        for n in ("0.1", "0.3", "0.6")},
 }
