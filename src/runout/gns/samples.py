@@ -70,7 +70,8 @@ class Simulations:
         self.rest_windows = rest_windows
         self.frame_dt = frame_dt  # s between the dataset's frames
         self.static_tail = static_tail
-        self.last_moving = [_last_moving_frame(p, t, STILL_SPEED * frame_dt) for p, t in zip(self.positions, self.particle_type)]
+        self.last_moving = (None if static_tail is None else  # one pass over every frame, only when it is used
+                            [_last_moving_frame(p, t, STILL_SPEED * frame_dt) for p, t in zip(self.positions, self.particle_type)])
         self._index_windows(1)
 
     def _usable_frames(self, sim: int) -> int:
