@@ -13,7 +13,7 @@ from runout.gns.checkpoint import load_simulator, read_checkpoint
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.simulator import NetworkConfig
 from runout.metrics import compare, final_displacement
-from runout.train import TrainConfig, train
+from runout.train import TrainConfig, learning_rate, train
 from runout.trajectory import trajectory_from_features
 from test_gns_synthetic import BOUNDS, FRAME_DT, falling_block, write_dataset
 
@@ -60,8 +60,39 @@ def test_a_chunk_out_of_time_saves_its_last_step_and_resumes_exactly(tmp_path):
     assert read_checkpoint(tmp_path / "chunk" / "checkpoint.pt")["step"] == 1
     resumed = train(config(data, tmp_path / "chunk", steps=12, resume=True))
     assert losses(tmp_path / "chunk") == losses(tmp_path / "whole")
+    walls = [json.loads(ln)["wall_s"] for ln in (tmp_path / "chunk" / "log.jsonl").read_text().splitlines()]
+    assert walls == sorted(walls)  # wall time counts on across chunks (CPU-hours of a campaign)
     for a, b in zip(whole.state_dict().values(), resumed.state_dict().values()):
         assert torch.equal(a, b)
+
+
+def test_a_hook_sees_every_step_and_can_end_the_run_saved_and_resumable(tmp_path):
+    data = write_dataset(tmp_path / "data")
+    seen = []
+
+    def hook(trainer):
+        seen.append((trainer.done, trainer.lr))
+        if trainer.done == 4:
+            trainer.stop_reason = "the test's hook stopped it"
+
+    cfg = config(data, tmp_path / "cut", steps=7, save_every=100)
+    train(cfg, hooks=(hook,))
+    assert [done for done, _ in seen] == [1, 2, 3, 4]
+    assert [lr for _, lr in seen] == [learning_rate(step, cfg) for step in range(4)]
+    assert read_checkpoint(tmp_path / "cut" / "checkpoint.pt")["step"] == 4
+    resumed = train(replace(cfg, resume=True))
+    whole = train(config(data, tmp_path / "whole", steps=7, save_every=100))
+    assert losses(tmp_path / "cut") == losses(tmp_path / "whole")
+    assert all(torch.equal(a, b) for a, b in zip(whole.state_dict().values(), resumed.state_dict().values()))
+
+
+def test_fine_tuning_trains_with_the_noise_asked_for_in_units_of_the_datas_velocity_std(tmp_path):
+    data = write_dataset(tmp_path / "data")
+    train(config(data, tmp_path / "base", steps=2, noise=0.1))
+    train(config(data, tmp_path / "tuned", steps=1, noise=0.5, init=tmp_path / "base" / "checkpoint.pt"))
+    base, tuned = (read_checkpoint(tmp_path / run / "checkpoint.pt") for run in ("base", "tuned"))
+    assert tuned["stats"]["noise_std"] == pytest.approx(5 * base["stats"]["noise_std"])
+    assert torch.equal(tuned["model"]["acc_scale"], base["model"]["acc_scale"])  # same normalisation: a warm start
 
 
 def test_the_connectivity_radius_can_be_chosen_for_a_new_run(tmp_path):

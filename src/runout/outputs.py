@@ -160,6 +160,13 @@ def check_picture(path: str | Path, option: str = "--out") -> Path:
     return path
 
 
+def write_atomic(path: Path, text: str) -> None:
+    """Write then rename, so a killed process never leaves a half-written file."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
 def _owner(path: Path) -> str | None:
     """The command whose results the folder holds, None if empty or new, 'foreign' otherwise."""
     if not path.is_dir() or not any(path.iterdir()):
@@ -202,7 +209,7 @@ def _written(path: Path, owner: str | None) -> set[str]:
 
 def _write_marker(path: Path, command: str, written) -> None:
     marker = {"command": command, "runout": runout.__version__, "written": sorted(written)}
-    (path / MARKER).write_text(json.dumps(marker) + "\n")
+    write_atomic(path / MARKER, json.dumps(marker) + "\n")
 
 
 def _check_writable(path: Path, option: str) -> None:

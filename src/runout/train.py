@@ -26,6 +26,7 @@ import time
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
+from typing import Callable
 
 import torch
 import torch.distributed as dist
@@ -46,6 +47,7 @@ from runout.gns.schema import SCHEMA_LIMITS, FeatureSchema
 from runout.gns.simulator import NETWORK_LIMITS, Case, NetworkConfig, Normalisation, Simulator
 from runout.gns.training_range import measure as measure_ranges
 from runout.metrics import compare
+from runout.outputs import write_atomic
 from runout.scene.validation import MAX_FRAMES
 from runout.simfiles import read_metadata
 
@@ -146,11 +148,13 @@ class Context:
         return self.rank == 0
 
 
-def train(cfg: TrainConfig) -> Simulator:
-    """Train (or resume, or fine-tune) and return the trained simulator (rank 0's copy)."""
+def train(cfg: TrainConfig, hooks: tuple[Hook, ...] = ()) -> Simulator:
+    """Train (or resume, or fine-tune) and return the trained simulator (rank 0's copy).
+    Each of `hooks` is called with the Trainer after every step, before logging,
+    validation and saving."""
     ctx = _start_processes(cfg.device)
     try:
-        return _train(cfg, ctx)
+        return _train(cfg, ctx, hooks)
     finally:
         if ctx.world > 1:
             dist.destroy_process_group()
@@ -172,7 +176,7 @@ def _start_processes(device: str) -> Context:
     return Context(dev, rank, world)
 
 
-def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
+def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Simulator:
     meta = read_metadata(cfg.data)
     data = Simulations(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"),
                        rest_windows=cfg.rest_windows, static_tail=cfg.static_tail, frame_dt=float(meta.get("dt", FRAME_DT)))
@@ -190,44 +194,103 @@ def _train(cfg: TrainConfig, ctx: Context) -> Simulator:
     if state:
         optimizer.load_state_dict(state["optimizer"])
         torch.set_rng_state(state["rng"]["torch"])
-    model = DistributedDataParallel(simulator) if ctx.world > 1 else simulator
-    bounds = torch.tensor(meta["bounds"], dtype=torch.float32, device=ctx.device)
-    log = RunLog(Path(cfg.out), ctx, state["step"] if state else 0)
-    best = state.get("best_valid", float("inf")) if state else float("inf")
-    start = state["step"] if state else 0
-    losses: list[torch.Tensor] = []
+    trainer = Trainer(
+        simulator=simulator, model=DistributedDataParallel(simulator) if ctx.world > 1 else simulator,
+        optimizer=optimizer, data=data, bounds=torch.tensor(meta["bounds"], dtype=torch.float32, device=ctx.device),
+        cfg=cfg, ctx=ctx, log=RunLog(Path(cfg.out), ctx, state["step"] if state else 0),
+        best=state.get("best_valid", float("inf")) if state else float("inf"),
+        hooks=(*hooks, log_losses, validate, save),
+    )
     deadline = time.monotonic() + cfg.max_hours * 3600 if cfg.max_hours > 0 else None
     with StopRequest(deadline) as stop:
-        for step in range(start, cfg.steps):
-            lr = learning_rate(step, cfg)
-            for group in optimizer.param_groups:
-                group["lr"] = lr
-            loss = _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx)
-            losses.append(loss.detach())
-            done = step + 1
-            if done % cfg.log_every == 0 or done % cfg.save_every == 0 or done == cfg.steps:
-                log.losses(done, losses, lr, cfg.log_every)
-                losses = []
-            if cfg.valid_every and done % cfg.valid_every == 0 and ctx.writer:
-                best = _validate(simulator, cfg, log, done, best)
-            saved = done % cfg.save_every == 0 or done == cfg.steps
-            if saved and ctx.writer:
-                _save(Path(cfg.out) / CHECKPOINT, simulator, optimizer, done, cfg, best)
-            if stop.agreed(ctx):
-                if not saved and ctx.writer:
-                    _save(Path(cfg.out) / CHECKPOINT, simulator, optimizer, done, cfg, best)
-                log.close()
-                if stop.out_of_time and not stop.requested:  # the chunk's time is up: a normal end
-                    if ctx.writer:
-                        tqdm.write(f"--max-hours {cfg.max_hours:g} reached after step {done}; "
-                                   f"{Path(cfg.out) / CHECKPOINT} holds it and --resume continues from there.")
-                    return simulator.eval()
-                raise Interrupted(
-                    f"training stopped after step {done}, which {Path(cfg.out) / CHECKPOINT} holds, "
-                    "and --resume continues exactly from there."
-                )
-    log.close()
+        done = trainer.run(state["step"] if state else 0, stop)
+    trainer.log.close()
+    if done < cfg.steps and stop.requested:
+        raise Interrupted(
+            f"training stopped after step {done}, which {Path(cfg.out) / CHECKPOINT} holds, "
+            "and --resume continues exactly from there."
+        )
+    if done < cfg.steps and ctx.writer:  # the chunk's time is up, or a hook stopped it: a normal end
+        why = trainer.stop_reason or f"--max-hours {cfg.max_hours:g} reached"
+        tqdm.write(f"{why} after step {done}; {Path(cfg.out) / CHECKPOINT} holds it and --resume continues from there.")
     return simulator.eval()
+
+
+Hook = Callable[["Trainer"], None]
+
+
+@dataclass
+class Trainer:
+    """The training loop and its periodic duties. Each step sets the learning rate of the
+    schedule, takes one optimiser step (_train_step), then calls every hook in turn with the
+    trainer, whose `done` is the number of steps taken; logging, validation and saving are
+    such hooks, and train(..., hooks=) adds others before them (a hook that sets
+    `stop_reason` ends the run after this step, saved)."""
+
+    simulator: Simulator
+    model: torch.nn.Module  # the simulator, or its DDP wrapper under torchrun
+    optimizer: torch.optim.Optimizer
+    data: Simulations
+    bounds: torch.Tensor  # [dim, 2] m
+    cfg: TrainConfig
+    ctx: Context
+    log: "RunLog"
+    best: float  # best validation position MSE so far (m^2)
+    hooks: tuple[Hook, ...]
+    done: int = 0  # steps taken
+    lr: float = 0.0  # learning rate of the last step
+    losses: list[torch.Tensor] = field(default_factory=list)  # since the last log line
+    saved_at: int = -1  # step of the last checkpoint written
+    stop_reason: str | None = None  # set by a hook: stop after this step
+
+    def run(self, start: int, stop: "StopRequest") -> int:
+        """Steps from `start` to cfg.steps, or until a stop is asked for (Ctrl-C, the
+        deadline, a hook); the step it ends on is saved. Returns the steps taken."""
+        self.done = start
+        for step in range(start, self.cfg.steps):
+            self.lr = learning_rate(step, self.cfg)
+            for group in self.optimizer.param_groups:
+                group["lr"] = self.lr
+            loss = _train_step(self.model, self.simulator, self.optimizer, self.data, self.bounds, self.cfg, step, self.ctx)
+            self.losses.append(loss.detach())
+            self.done = step + 1
+            for hook in self.hooks:
+                hook(self)
+            if stop.agreed(self.ctx) or self.stop_reason is not None:
+                if self.saved_at != self.done:
+                    self.save()
+                break
+        return self.done
+
+    def due(self, every: int) -> bool:
+        """Whether a duty of period `every` steps (0: never) falls on this step; the last step always does."""
+        return bool(every) and (self.done % every == 0 or self.done == self.cfg.steps)
+
+    def save(self) -> None:
+        if self.ctx.writer:
+            _save(Path(self.cfg.out) / CHECKPOINT, self.simulator, self.optimizer, self.done, self.cfg, self.best)
+        self.saved_at = self.done
+
+
+def log_losses(trainer: Trainer) -> None:
+    """Every log_every steps (and at every save), the mean loss of each group of steps."""
+    cfg = trainer.cfg
+    if trainer.due(cfg.log_every) or trainer.done % cfg.save_every == 0:
+        trainer.log.losses(trainer.done, trainer.losses, trainer.lr, cfg.log_every)
+        trainer.losses = []
+
+
+def validate(trainer: Trainer) -> None:
+    """Every valid_every steps, rollouts from rest on the validation set; best.pt kept."""
+    cfg = trainer.cfg
+    if cfg.valid_every and trainer.done % cfg.valid_every == 0 and trainer.ctx.writer:
+        trainer.best = _validate(trainer.simulator, cfg, trainer.log, trainer.done, trainer.best)
+
+
+def save(trainer: Trainer) -> None:
+    """Every save_every steps and at the last, the checkpoint (written atomically)."""
+    if trainer.due(trainer.cfg.save_every):
+        trainer.save()
 
 
 class StopRequest:
@@ -377,6 +440,9 @@ def _start(cfg: TrainConfig, meta: dict, data: Simulations):
         simulator = simulator_from_checkpoint(base, cfg.init)
         if cfg.frame_stride not in (None, simulator.frame_stride):
             _restride(simulator, cfg.frame_stride, meta, data, cfg.noise)
+        else:  # --noise is a fraction of this data's velocity std, whatever the base model trained with; the
+            # normalisation buffers stay the base's (widened by its noise), so training starts from its predictions
+            simulator.stats = replace(simulator.stats, noise_std=cfg.noise * noise_scale(_statistics(meta, data, simulator.frame_stride)))
         wanted = data.schema(simulator.schema)
         if wanted.material_features != simulator.schema.material_features:
             widen_material_features(simulator, wanted.material_features, cfg.init)
@@ -460,16 +526,19 @@ class RunLog:
         if not ctx.writer:
             return
         out.mkdir(parents=True, exist_ok=True)
-        self._truncate(start)
+        before = self._truncate(start)
         self.bar = tqdm(initial=start, desc="GNS training", unit="step", dynamic_ncols=True)
         self.tensorboard = _tensorboard_writer(out)
-        self.t0 = time.perf_counter()
+        self.t0 = time.perf_counter() - before  # wall_s counts on across resumed chunks
 
-    def _truncate(self, start: int) -> None:
+    def _truncate(self, start: int) -> float:
+        """Keep the lines up to step `start`; return the wall time (s) they had reached."""
         if not self.path.exists():
-            return
-        kept = [ln for ln in self.path.read_text().splitlines() if ln and json.loads(ln)["step"] <= start]
-        self.path.write_text("".join(ln + "\n" for ln in kept))
+            return 0.0
+        kept = [json.loads(ln) for ln in self.path.read_text().splitlines() if ln]
+        kept = [r for r in kept if r["step"] <= start]
+        write_atomic(self.path, "".join(json.dumps(r) + "\n" for r in kept))
+        return max((float(r.get("wall_s", 0.0)) for r in kept), default=0.0)
 
     def losses(self, step: int, losses: list[torch.Tensor], lr: float, every: int) -> None:
         """Record the mean loss of each group of `every` steps (averaged over processes)."""

@@ -12,7 +12,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -21,6 +20,7 @@ import numpy as np
 from runout import checks
 from runout.errors import InputError
 from runout.inverse.spec import FreeParameter
+from runout.outputs import write_atomic
 
 HISTORY_JSON = "history.json"
 HISTORY_CSV = "history.csv"
@@ -107,8 +107,8 @@ class History:
 
     def write(self) -> None:
         self.out_dir.mkdir(parents=True, exist_ok=True)
-        _write_atomic(self.out_dir / HISTORY_JSON, json.dumps(self.to_dict(), indent=1))
-        _write_atomic(self.out_dir / HISTORY_CSV, self.to_csv())
+        write_atomic(self.out_dir / HISTORY_JSON, json.dumps(self.to_dict(), indent=1))
+        write_atomic(self.out_dir / HISTORY_CSV, self.to_csv())
 
     def to_csv(self) -> str:
         names = [f"{p.name} ({p.unit})" for p in self.free]
@@ -148,10 +148,3 @@ class History:
             checks.number(r.loss, f"evaluations[{k}].loss", path, 0.0, unit=" m²")
             for key in ("normalised", "gradient_normalised"):
                 checks.numbers(getattr(r, key), f"evaluations[{k}].{key}", path, len(self.free))
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    """Write then rename, so a killed process never leaves a half-written file."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
