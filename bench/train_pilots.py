@@ -58,6 +58,10 @@ PRESETS: dict[str, list[str]] = {
        for n in ("0.1", "0.3", "0.6")},
     **{f"c-noise{n}-stride2": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--frame-stride", "2"]
        for n in ("0.1", "0.3", "0.6")},
+    # from an exact-rest pilot's checkpoint (--init PATH): the frame stride changed, exact rest kept
+    **{f"x-noise{n}-exact-stride{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--exact-rest",
+                                       "--frame-stride", k]
+       for n in ("0.1", "0.3", "0.6") for k in ("2", "4")},
 }
 
 
