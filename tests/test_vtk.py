@@ -92,6 +92,15 @@ def test_a_stride_keeps_the_last_frame(tmp_path):
     assert sorted(p.name for p in tmp_path.glob("*.vtu")) == [d.get("file") for d in entries]
 
 
+def test_a_shorter_export_over_a_longer_one_leaves_no_frame_of_the_old_run(tmp_path):
+    write_vtk(small_trajectory(frames=7), tmp_path)
+    (tmp_path / "notes.txt").write_text("mine")
+    pvd = write_vtk(small_trajectory(frames=3), tmp_path)
+    assert sorted(p.name for p in tmp_path.glob("*.vtu")) == [d.get("file") for d in pvd_entries(pvd)] == [
+        "frame_00000.vtu", "frame_00001.vtu", "frame_00002.vtu"]
+    assert (tmp_path / "notes.txt").read_text() == "mine"
+
+
 def test_runout_mpm_and_rollout_write_vtk_on_request(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(runout.mpm, "simulate", lambda scenes, **k: static_run(scenes, frames=7))
     assert run(["mpm", DAM, "--out", tmp_path / "mpm", "--vtk", "--no-animate"], capsys)[0] == 0

@@ -51,7 +51,9 @@ def frame_mesh(traj: Trajectory, frame: int) -> meshio.Mesh:
 
 
 def write_vtk(traj: Trajectory, folder: str | Path, every: int = 1) -> Path:
-    """Write every `every`-th frame (and the last) as .vtu and the .pvd series; returns the .pvd."""
+    """Write every `every`-th frame (and the last) as .vtu and the .pvd series; returns the .pvd.
+    Frame files of an earlier export in the folder that this one does not rewrite are removed,
+    so the folder never mixes two runs; other files in it are left alone."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     frames = sorted(set(range(0, traj.n_frames, every)) | {traj.n_frames - 1})
@@ -66,4 +68,8 @@ def write_vtk(traj: Trajectory, folder: str | Path, every: int = 1) -> Path:
     )
     path = folder / PVD_NAME
     path.write_text(pvd)
+    written = {f"frame_{f:05d}.vtu" for f in frames}
+    for stale in folder.glob("frame_[0-9][0-9][0-9][0-9][0-9].vtu"):  # a previous, longer or denser export's frames
+        if stale.name not in written:
+            stale.unlink()
     return path
