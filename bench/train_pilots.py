@@ -99,9 +99,8 @@ def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int
     import torch
 
     from runout.dataset import split_trajectories
-    from runout.evaluate.heldout import score, standing_still
+    from runout.evaluate.heldout import rollout_all, score, standing_still
     from runout.gns.checkpoint import load_simulator, read_checkpoint
-    from runout.gns.rollout import rollout_trajectory
 
     torch.set_num_threads(threads or os.cpu_count() or 1)
     truths = list(split_trajectories(data, "valid", n_valid))
@@ -117,7 +116,7 @@ def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int
         log = [json.loads(ln) for ln in (out / name / "log.jsonl").read_text().splitlines() if ln]
         wall = max((r.get("wall_s", 0.0) for r in log), default=0.0)
         t0 = time.perf_counter()
-        predicted = [rollout_trajectory(simulator, t, t.n_frames, stop_speed=None) for t in truths]
+        predicted = rollout_all(simulator, truths)
         rows.append({
             "pilot": name, "options": " ".join(PRESETS[name]), "steps": step, "train_wall_s": wall,
             "s_per_step": wall / max(step, 1),

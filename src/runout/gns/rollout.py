@@ -42,27 +42,31 @@ def rollout(
     checkpoint: bool = False,
     progress: bool = False,
     stop_speed: float | None = None,
+    graph: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Positions [history + steps, N, 2] (m) from initial_positions [history, N, 2] (m),
     one per model step (frame_stride dataset frames).
 
     particle_type [N] (3 = kinematic), material [N, k] (may require grad), bounds
-    [[x_lo, x_hi], [y_lo, y_hi]] (m). Differentiable w.r.t. material and the model.
-    stop_speed (m per step): stop early once every soil point moved less than this per
-    step over the last CHECK_EVERY steps (never before MIN_FRAMES_BEFORE_STOP dataset frames).
+    [[x_lo, x_hi], [y_lo, y_hi]] (m), or [N, 2, 2] per point. Differentiable w.r.t.
+    material and the model. stop_speed (m per step): stop early once every soil point moved
+    less than this per step over the last CHECK_EVERY steps (never before
+    MIN_FRAMES_BEFORE_STOP dataset frames). graph [N]: the scene of each point when several
+    are rolled out together (no edge joins two scenes; None: one scene).
     """
     device = simulator.vel_mean.device
     window = initial_positions.to(device).transpose(0, 1)  # [N, history, 2]
     particle_type = particle_type.to(device)
     material = material.to(device)
+    graph = None if graph is None else graph.to(device)
     case = Case.of(particle_type, torch.as_tensor(bounds, dtype=window.dtype, device=device))
     frames = list(window.unbind(1))
     min_frames = math.ceil(MIN_FRAMES_BEFORE_STOP / simulator.frame_stride)  # in steps
     for step in tqdm(range(n_steps), disable=not progress, desc="GNS rollout", unit="step"):
         if checkpoint and torch.is_grad_enabled():
-            nxt = recompute_in_backward(simulator.step, window, particle_type, material, case, use_reentrant=False)
+            nxt = recompute_in_backward(simulator.step, window, particle_type, material, case, graph, use_reentrant=False)
         else:
-            nxt = simulator.step(window, particle_type, material, case)
+            nxt = simulator.step(window, particle_type, material, case, graph)
         frames.append(nxt)
         window = torch.cat([window[:, 1:], nxt[:, None]], dim=1)
         if (step + 1) % CHECK_EVERY == 0 or step + 1 == n_steps:
@@ -106,32 +110,58 @@ def rollout_trajectory(
     repeated, the points at rest, and the rollout's frame 0 is that frame. Otherwise the window
     is `initial`'s frames 0, K, ..., (history - 1) K (the public GNS's start from simulated
     frames), and they are the rollout's first frames."""
+    return rollout_trajectories(simulator, [initial], n_frames, stop_speed, progress, from_rest)[0]
+
+
+def rollout_trajectories(
+    simulator: Simulator,
+    initials: list[Trajectory],
+    n_frames: int,
+    stop_speed: float | None = 0.05,
+    progress: bool = False,
+    from_rest: bool = True,
+) -> list[Trajectory]:
+    """rollout_trajectory for several scenes in one graph batch (one network call per step
+    for all of them, each scene its own graph and domain): the same trajectories, to float32
+    rounding, in less time. A stop_speed stops them all once every scene has stopped."""
     history, stride = simulator.schema.history, simulator.frame_stride
-    start = initial.every(stride)
-    if not from_rest and start.n_frames < history:
-        raise InputError(f"{initial.name} has {initial.n_frames} frames, fewer than the {simulator.window_frames} "
-                         f"that the model's window of {history} positions at frame stride {stride} spans.")
-    given = 1 if from_rest else history  # frames of `initial` that the rollout starts from
-    window = np.repeat(start.positions[:1], history, axis=0) if from_rest else start.positions[:history]
-    per_step = None if stop_speed is None else stop_speed * start.frame_dt  # m/s -> m per step
+    given = 1 if from_rest else history  # frames of each initial that its rollout starts from
+    starts = [initial.every(stride) for initial in initials]
+    for initial, start in zip(initials, starts):
+        if not from_rest and start.n_frames < history:
+            raise InputError(f"{initial.name} has {initial.n_frames} frames, fewer than the {simulator.window_frames} "
+                             f"that the model's window of {history} positions at frame stride {stride} spans.")
+    if len({s.frame_dt for s in starts}) > 1:
+        raise InputError(f"{', '.join(t.name for t in initials)}: frames {sorted({t.frame_dt for t in initials})} s apart; "
+                         "scenes rolled out together need one frame time step.")
+    windows = [np.repeat(s.positions[:1], history, axis=0) if from_rest else s.positions[:history] for s in starts]
+    sizes = [t.n_points for t in initials]
+    one = len(initials) == 1  # one scene: one graph and one domain, as always
+    bounds = initials[0].bounds if one else np.concatenate([np.repeat(t.bounds[None], t.n_points, 0) for t in initials])
+    graph = None if one else torch.repeat_interleave(torch.arange(len(initials)), torch.tensor(sizes))
+    per_step = None if stop_speed is None else stop_speed * starts[0].frame_dt  # m/s -> m per step
     with torch.no_grad():
         positions = rollout(
             simulator,
-            torch.from_numpy(np.ascontiguousarray(window)),
-            torch.from_numpy(initial.particle_type),
-            material_tensor(simulator, initial),
+            torch.from_numpy(np.ascontiguousarray(np.concatenate(windows, axis=1))),
+            torch.from_numpy(np.concatenate([t.particle_type for t in initials])),
+            torch.cat([material_tensor(simulator, t) for t in initials]),
             max(math.ceil((n_frames - 1) / stride) + 1 - given, 0),
-            initial.bounds,
+            bounds,
             progress=progress,
             stop_speed=per_step,
+            graph=graph,
         )
-    positions = positions[history - given:]  # from rest: the window's copies of frame 0 become one frame 0
-    return Trajectory(
-        positions.cpu().numpy().astype(np.float32), initial.particle_type, initial.material_id,
-        initial.materials, start.frame_dt, initial.bounds, initial.name,
-        {"engine": "gns", "frames_requested": n_frames, "frame_stride": stride,
-         "start": "rest" if from_rest else "frames"},
-    )
+    positions = positions[history - given:].cpu().numpy().astype(np.float32)  # from rest: the window's copies of frame 0 become one frame 0
+    parts = np.split(positions, np.cumsum(sizes)[:-1], axis=1)
+    return [
+        Trajectory(
+            part, initial.particle_type, initial.material_id, initial.materials, start.frame_dt, initial.bounds,
+            initial.name, {"engine": "gns", "frames_requested": n_frames, "frame_stride": stride,
+                           "start": "rest" if from_rest else "frames"},
+        )
+        for part, initial, start in zip(parts, initials, starts)
+    ]
 
 
 def scene_at_rest(scene: Scene, frames: int = 1) -> Trajectory:

@@ -114,7 +114,7 @@ class Case:
         """Predicted positions [N, 2] with kinematic points held at `current` and every point
         clamped into the domain."""
         predicted = torch.where(self.movable[:, None], predicted, current)
-        return torch.clamp(predicted, self.bounds[:, 0], self.bounds[:, 1])
+        return torch.clamp(predicted, self.bounds[..., 0], self.bounds[..., 1])
 
 
 def _normalisation_buffers(stats: Normalisation) -> dict[str, torch.Tensor]:
