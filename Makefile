@@ -25,7 +25,7 @@ test: setup
 	$(BIN)/python -m pytest -q
 
 bench: setup
-	$(BIN)/python bench/mpm.py --frames 20 --batches 1,8
+	$(BIN)/python bench/mpm.py --frames 20 --batches 1,8 --backends torch,warp
 	$(BIN)/python bench/mpm.py --frames 20 --batches 1,8 --compile --float32
 	$(BIN)/python bench/gns.py --repeats 2
 

@@ -8,6 +8,10 @@ Frames can be cut for a quick figure: throughput is per substep, and the printed
     python bench/mpm.py                       # CPU, batches 1, 8, 64, 30 frames
     python bench/mpm.py --device cuda --frames 500
     python bench/mpm.py --batches 1 --frames 500 --compile
+    python bench/mpm.py --batches 1,8 --backends torch,warp   # the Warp kernels beside the torch solver
+
+The Warp backend (runout.mpm.kernels) is float64 only; its kernel compile (or cache load) is done
+before the timed run, as torch.compile's is. Warp runs a CPU launch on one thread whatever --threads says.
 
 Reference: the paper's MPM data took ~50 minutes per run on a 56-core node.
 """
@@ -15,6 +19,7 @@ Reference: the paper's MPM data took ~50 minutes per run on a 56-core node.
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import time
 
@@ -38,14 +43,14 @@ def column_scene(phi: float, frames: int):
     )
 
 
-def measure(batch: int, frames: int, device: str, dtype, compile: bool) -> dict:
+def measure(batch: int, frames: int, device: str, dtype, compile: bool, backend: str = "torch") -> dict:
     scenes = [column_scene(20.0 + 20.0 * k / max(batch - 1, 1), frames) for k in range(batch)]
-    if compile:  # compile once (dynamic shapes) outside the timed run
-        simulate(scenes[:1], device=device, progress=False, dtype=dtype, compile=True, frames=2)
+    if compile or backend == "warp":  # compile once (dynamic shapes) or load the kernels outside the timed run
+        simulate(scenes[:1], device=device, progress=False, dtype=dtype, compile=compile, frames=2, backend=backend)
     if device == "cuda":
         torch.cuda.synchronize()
     start = time.perf_counter()
-    trajs = simulate(scenes, device=device, progress=False, dtype=dtype, compile=compile)
+    trajs = simulate(scenes, device=device, progress=False, dtype=dtype, compile=compile, backend=backend)
     if device == "cuda":
         torch.cuda.synchronize()
     wall = time.perf_counter() - start
@@ -55,7 +60,7 @@ def measure(batch: int, frames: int, device: str, dtype, compile: bool) -> dict:
     rate = points * substeps / wall
     full = info["relaxation_substeps"] + info["substeps_per_frame"] * 499
     return {
-        "batch": batch, "points_per_scene": trajs[0].n_points, "substeps": substeps, "wall_s": wall,
+        "backend": backend, "batch": batch, "points_per_scene": trajs[0].n_points, "substeps": substeps, "wall_s": wall,
         "rate": rate, "s_per_500_frame_run": full * trajs[0].n_points / rate,
     }
 
@@ -68,18 +73,22 @@ def main() -> None:
     ap.add_argument("--threads", type=int, default=None, help="torch CPU threads (default: torch's choice)")
     ap.add_argument("--float32", action="store_true")
     ap.add_argument("--compile", action="store_true")
+    ap.add_argument("--backends", default="torch", help="comma-separated: torch (solver.py), warp (kernels.py)")
     args = ap.parse_args()
     if args.threads:
         torch.set_num_threads(args.threads)
     dtype = torch.float32 if args.float32 else torch.float64
+    backends = args.backends.split(",")
     print(f"# {platform.processor() or platform.machine()}, torch {torch.__version__}, device {args.device}, "
-          f"threads {torch.get_num_threads()}, {dtype}, compile={args.compile}, frames={args.frames}")
-    print("batch  points/scene  substeps  wall s  particle-substeps/s  s per 500-frame run  vs paper (50 min)")
+          f"threads {torch.get_num_threads()}, {dtype}, compile={args.compile}, frames={args.frames}, "
+          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores")
+    print("backend  batch  points/scene  substeps  wall s  particle-substeps/s  s per 500-frame run  vs paper (50 min)")
     for b in (int(x) for x in args.batches.split(",")):
-        r = measure(b, args.frames, args.device, dtype, args.compile)
-        print(f"{r['batch']:5d}  {r['points_per_scene']:12d}  {r['substeps']:8d}  {r['wall_s']:6.1f}  "
-              f"{r['rate']:19.3e}  {r['s_per_500_frame_run']:19.1f}  "
-              f"{REFERENCE_S_PER_RUN / r['s_per_500_frame_run']:8.0f}x", flush=True)
+        for backend in backends:
+            r = measure(b, args.frames, args.device, dtype, args.compile and backend == "torch", backend)
+            print(f"{r['backend']:>7}  {r['batch']:5d}  {r['points_per_scene']:12d}  {r['substeps']:8d}  "
+                  f"{r['wall_s']:6.1f}  {r['rate']:19.3e}  {r['s_per_500_frame_run']:19.1f}  "
+                  f"{REFERENCE_S_PER_RUN / r['s_per_500_frame_run']:8.0f}x", flush=True)
 
 
 if __name__ == "__main__":

@@ -32,10 +32,12 @@ def simulate(
     frames: int | None = None,
     dtype: torch.dtype = torch.float64,
     compile: bool = False,
+    backend: str = "torch",
 ) -> list[Trajectory]:
     """Run every scene through the MPM; returns one Trajectory per scene, in order.
 
-    dtype float64 (default) or float32; compile=True uses torch.compile for long runs."""
+    dtype float64 (default) or float32; compile=True uses torch.compile for long runs;
+    backend="warp" runs the substep as fused Warp kernels (float64; runout.mpm.kernels)."""
     checks.device(str(device))
     device = torch.device(device)
     groups: dict[tuple, list[int]] = defaultdict(list)
@@ -46,6 +48,6 @@ def simulate(
     out: list[Trajectory | None] = [None] * len(scenes)
     for (*_, n, _), members in groups.items():
         batch = build_batch([scenes[k] for k in members], device, dtype)
-        for k, traj in zip(members, run_batch(batch, n, progress, compile)):
+        for k, traj in zip(members, run_batch(batch, n, progress, compile, backend)):
             out[k] = traj
     return out

@@ -19,7 +19,7 @@ RELAX_PERIODS = 3.0  # length of the geostatic relaxation in periods of the slow
 RELAX_DAMPING = 0.8  # local damping share during the relaxation (FLAC's default for static equilibrium)
 
 
-def relax_geostatic(batch: Batch, step=substep) -> int:
+def relax_geostatic(batch: Batch, step=substep, held=None) -> int:
     """Bring the K0 stresses into the discrete equilibrium of this grid before release.
 
     Damped elastic-plastic dynamics with the points held in place: stresses absorb the strain
@@ -35,10 +35,33 @@ def relax_geostatic(batch: Batch, step=substep) -> int:
     release (docs/scene-format.md, solver version 5). RELAX_PERIODS periods of the slowest
     vertical mode (4 H / c_p for the scene's tallest body H) are run at the wave-speed CFL step;
     a scene that has finished holds its stresses while others go on, so a batch relaxes each
-    scene exactly as it would alone. Returns the substeps run."""
+    scene exactly as it would alone. `held` (kernels.WarpSubstep.relax) runs all the held
+    substeps at once in place, instead of `step` one by one. Returns the substeps run."""
     pts, grid = batch.pts, batch.grid
     if len(pts.x) == 0:
         return 0
+    dt, steps_p, total = relaxation_schedule(batch)
+    x0, v0 = pts.x.clone(), pts.v.clone()
+    pts.v = torch.zeros_like(v0)
+    if held is not None:
+        held(pts, grid, dt, batch.flip, RELAX_DAMPING, steps_p, total)
+    else:
+        for k in range(total):
+            stress = pts.stress
+            step(pts, grid, dt, batch.flip, RELAX_DAMPING)
+            pts.stress = torch.where((k < steps_p)[:, None], pts.stress, stress)
+            pts.x = x0
+    pts.x, pts.v = x0, v0
+    pts.C = torch.zeros_like(pts.C)
+    pts.volume = torch.full_like(pts.volume, float(batch.scenes[0].domain.point_spacing) ** 2)
+    pts.stress = return_map(pts.stress, pts.mat)
+    return total
+
+
+def relaxation_schedule(batch: Batch) -> tuple[float, torch.Tensor, int]:
+    """The relaxation's step (s), each point's number of stress-updating substeps [P] (its
+    scene's RELAX_PERIODS periods) and the substeps run (the longest scene's)."""
+    pts, grid = batch.pts, batch.grid
     n_scenes = len(batch.scenes)
     height = torch.zeros(n_scenes, dtype=pts.x.dtype, device=pts.x.device)
     height.scatter_reduce_(0, pts.scene, pts.x[:, 1], reduce="amax")
@@ -49,32 +72,35 @@ def relax_geostatic(batch: Batch, step=substep) -> int:
     # points are held, so only the wave speed limits the step (no fall speed as in batch.dt)
     dt = max(batch.dt, RELAX_CFL * batch.scenes[0].time.cfl * grid.dx / float(c_p.max()))
     steps = torch.ceil(RELAX_PERIODS * period / dt).long()  # per scene
-    steps_p = steps[pts.scene]
-    x0, v0 = pts.x.clone(), pts.v.clone()
-    pts.v = torch.zeros_like(v0)
-    total = int(steps.max())
-    for k in range(total):
-        stress = pts.stress
-        step(pts, grid, dt, batch.flip, RELAX_DAMPING)
-        pts.stress = torch.where((k < steps_p)[:, None], pts.stress, stress)
-        pts.x = x0
-    pts.x, pts.v = x0, v0
-    pts.C = torch.zeros_like(pts.C)
-    pts.volume = torch.full_like(pts.volume, float(batch.scenes[0].domain.point_spacing) ** 2)
-    pts.stress = return_map(pts.stress, pts.mat)
-    return total
+    return dt, steps[pts.scene], int(steps.max())
 
 
-def run_batch(batch: Batch, frames: int, progress: bool = True, compile: bool = False) -> list[Trajectory]:
+BACKENDS = ("torch", "warp")  # the substep as torch tensor operations (solver) or as Warp kernels (kernels)
+
+
+def run_batch(batch: Batch, frames: int, progress: bool = True, compile: bool = False,
+              backend: str = "torch") -> list[Trajectory]:
     """Advance every scene of the batch through `frames` output frames (frame 0 = start).
 
     compile=True fuses the substep with torch.compile: about 2.5x faster per substep on CPU
-    but it costs a minute or more of compilation first, so it pays off only on long runs."""
+    but it costs a minute or more of compilation first, so it pays off only on long runs.
+    backend="warp" runs the same substep as fused Warp kernels (runout.mpm.kernels, float64
+    only); it is not the default until it passes every check of the torch solver."""
+    if backend not in BACKENDS:
+        raise ValueError(f"MPM backend {backend!r} is not one of {', '.join(BACKENDS)}")
+    if backend == "warp" and compile:
+        raise ValueError("compile=True is for the torch backend; the Warp backend is compiled already")
     pts, grid = batch.pts, batch.grid
     n_scenes = len(batch.scenes)
-    step = torch.compile(substep, dynamic=True) if compile else substep
     with torch.no_grad():
-        relax_steps = relax_geostatic(batch, step)
+        if backend == "warp":
+            from runout.mpm.kernels import WarpSubstep  # imported here: warp loads only when asked for
+
+            step = WarpSubstep(grid, pts)
+            relax_steps = relax_geostatic(batch, held=step.relax)
+        else:
+            step = torch.compile(substep, dynamic=True) if compile else substep
+            relax_steps = relax_geostatic(batch, step)
     record = [pts.x.detach().to("cpu", torch.float32)]
     ke0, pe0 = energies(pts, n_scenes)
     kinetic, potential = [ke0.cpu()], [pe0.cpu()]
@@ -101,6 +127,7 @@ def run_batch(batch: Batch, frames: int, progress: bool = True, compile: bool = 
         traj = trajectory_for_scene(s, positions, ptype, mid)
         traj.info = {
             "engine": "mpm",
+            "backend": backend,
             "substeps_per_frame": batch.n_sub,
             "relaxation_substeps": relax_steps,
             "dt": batch.dt,
