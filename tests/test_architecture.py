@@ -16,7 +16,7 @@ LAYERS = (
     ("data", ("runout.scene", "runout.checks", "runout.simfiles", "runout.trajectory", "runout.dataset", "runout.metrics")),
     ("engines", ("runout.mpm", "runout.gns")),
     ("views", ("runout.plots", "runout.vtk")),
-    ("applications", ("runout.families", "runout.train", "runout.inverse", "runout.evaluate", "runout.compare",
+    ("applications", ("runout.families", "runout.train", "runout.train_settings", "runout.inverse", "runout.evaluate", "runout.compare",
                       "runout.generate", "runout.demo", "runout.validate", "runout.validate_figures", "runout.mpm_run",
                       "runout.gns_run")),
     ("cli", ("runout.cli", "runout.__main__")),
@@ -93,3 +93,11 @@ def test_the_scene_loads_without_torch():
 def test_the_data_layer_loads_without_torch():
     modules = ", ".join(name for layer in LAYERS[:2] for name in layer[1])
     subprocess.run([sys.executable, "-c", f"import {modules}, sys; assert 'torch' not in sys.modules"], check=True)
+
+
+def test_the_command_line_starts_without_torch_or_matplotlib():
+    """`runout --help` and every command's options load only the settings they derive from
+    (runout.train_settings, runout.evaluate.cases, ...); the engines load when a command runs."""
+    code = ("import runout.cli, sys; heavy = [m for m in ('torch', 'matplotlib', 'scipy', 'warp') if m in sys.modules]; "
+            "assert not heavy, heavy")
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -11,6 +11,8 @@ What a scene, a trajectory file, a dataset and a checkpoint agree on, one owner 
                         cell_size / points_per_cell apart (spacing_for_cells)
     FeatureSchema       the node-feature layout stored in every checkpoint, and the frames
                         a rollout starts from and needs (start_frames, check_frames)
+    NetworkConfig       the layer sizes every checkpoint stores, NETWORK_LIMITS their
+                        allowed range, MAX_STEPS the most training steps one records
 
 Node features, in this column order (material features last, so a model can be widened
 with one more material input by appending zero columns to the encoder's first layer):
@@ -49,6 +51,29 @@ SCHEMA_LIMITS = {
     "history": (2, 20), "dim": (2, 2), "wall_clip": (0.0, 100.0), "particle_types": (PARTICLE_TYPE_SOIL + 1, 64),
     "type_embedding": (1, 256), "frame_stride": (1, 16),
 }
+
+MAX_STEPS = 1_000_000_000  # the most training steps a checkpoint may record (as `runout train --steps` allows)
+# Allowed layer sizes: [lowest, highest] of each NetworkConfig field.
+NETWORK_LIMITS = {"latent": (1, 1024), "hidden": (1, 1024), "hidden_layers": (1, 8), "message_passing_steps": (1, 50)}
+
+
+@dataclass(frozen=True)
+class NetworkConfig:
+    """The layer sizes of the encode-process-decode network, stored in every checkpoint."""
+
+    latent: int = 128
+    hidden: int = 128
+    hidden_layers: int = 2
+    message_passing_steps: int = 10
+
+    @staticmethod
+    def problem(d: dict) -> str | None:
+        """The first layer size outside NETWORK_LIMITS, as a phrase, or None."""
+        for key, (lo, hi) in NETWORK_LIMITS.items():
+            v = d.get(key, getattr(NetworkConfig, key))
+            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
+                return f"{key} = {v!r} is outside the allowed range [{lo}, {hi}] (a whole number)"
+        return None
 
 
 # ----------------------------------------------------------------------------- spacing and radius

@@ -7,6 +7,7 @@ the dataclasses in runout.scene.model use the same numbers.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 GRAVITY = 9.81  # m/s^2, downwards (-y); the MPM imports it from here
 
@@ -33,3 +34,5 @@ YOUNGS_MODULUS = 40.0  # MPa
 POISSON_RATIO = 0.3
 DENSITY = 1800.0  # kg/m^3
 TENSION_CUTOFF = 0.1  # kPa, capped at c / tan(phi)
+
+MPM_CACHE = Path.home() / ".cache" / "runout" / "mpm"  # where MPM runs are cached by scene (runout.mpm.cache)

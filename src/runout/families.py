@@ -21,7 +21,6 @@ import numpy as np
 
 from runout.errors import InputError
 from runout.outputs import check_folder, check_picture, claim
-from runout.plots.families import draw_grid
 from runout.scene import Domain, Material, Region, Scene, TimeSpec, polygon_area, polygon_self_intersects, save_scene
 
 DOMAIN_HEIGHT = 152.0  # m, both stages
@@ -381,6 +380,8 @@ def draw_family(
     folder = check_folder(scenes, "families", [f"{n}.toml" for n in names], force=force, option="--scenes") if scenes else None
     rng = np.random.default_rng([seed, STAGES[stage].stage_id, FAMILIES.index(family)])
     samples = [sample(STAGES[stage], family, rng, name=name) for name in names]
+    from runout.plots.families import draw_grid  # Matplotlib only when a picture is drawn
+
     out.parent.mkdir(parents=True, exist_ok=True)
     draw_grid(samples, out)
     if folder is not None:

@@ -24,7 +24,7 @@ import signal
 import threading
 import time
 from contextlib import nullcontext
-from dataclasses import asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable
 
@@ -38,96 +38,25 @@ from runout.dataset import split_trajectories
 from runout.defaults import FRAME_DT
 from runout.errors import InputError, Interrupted
 from runout.gns.checkpoint import (
-    MAX_STEPS, check_resumable, check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint,
+    check_resumable, check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint,
     widen_material_features,
 )
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations
-from runout.gns.schema import SCHEMA_LIMITS, FeatureSchema
-from runout.gns.simulator import NETWORK_LIMITS, Case, NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema
+from runout.gns.simulator import Case, Normalisation, Simulator
 from runout.gns.training_range import measure as measure_ranges
 from runout.metrics import compare
 from runout.outputs import write_atomic
-from runout.scene.validation import MAX_FRAMES
 from runout.simfiles import read_metadata
+from runout.train_settings import (  # noqa: F401  (the settings, re-exported)
+    OPTION_NAMES, PUSHFORWARD_LIMITS, SETTING_LIMITS, Limit, TrainConfig, check_settings, option_name,
+)
 
 CHECKPOINT = "checkpoint.pt"
 BEST = "best.pt"
 LOG = "log.jsonl"
-PUSHFORWARD_LIMITS = (0, 10)  # allowed --pushforward: the most rollout steps before a training step
 MOVING_SPEED = 0.25  # m/s: a point faster than this over its target step is moving (0.0094 m per 1-frame step)
-
-
-@dataclass
-class TrainConfig:
-    data: Path
-    out: Path
-    steps: int = 2_000_000  # final value of the step counter
-    batch_size: int = 2  # graphs per process and step
-    lr_init: float = 1e-4
-    lr_final: float = 1e-6
-    lr_decay_steps: float = 5e6
-    noise: float = 0.1  # velocity noise std as a fraction of the data's velocity std (round 1 of the recipe pilots: at 0.3 and 0.6 a model never starts from rest)
-    rest_windows: bool = True  # also train on windows that start before frame 0 (a scene at rest)
-    exact_rest: bool = False  # no noise on the held copies of frame 0 in a window (a rollout starts from them exactly)
-    static_tail: int | None = None  # frames kept after a simulation's flow stops (None: all)
-    moving_weight: float = 1.0  # loss weight of a point moving faster than MOVING_SPEED against 1 for one that does not
-    seed: int = 0
-    device: str = "auto"  # auto, cpu, cuda, cuda:1, ...
-    resume: bool = False
-    init: Path | None = None  # fine-tune from this checkpoint (widening material inputs if needed)
-    network: NetworkConfig = field(default_factory=NetworkConfig)
-    save_every: int = 1000
-    log_every: int = 100
-    valid_every: int = 20_000  # 0: never
-    valid_trajectories: int = 1
-    valid_frames: int = 0  # 0: the whole trajectory
-    checkpoint_layers: bool = True  # recompute processor steps in backward (less memory)
-    bf16: bool = False  # autocast the network to bfloat16
-    lr_step_offset: int = 0  # learning-rate schedule continues from the base model's step
-    max_hours: float = 0.0  # wall-clock limit of this run (one chunk of a campaign); 0: none
-    radius: float | None = None  # connectivity radius in m (None: the dataset's default)
-    frame_stride: int | None = None  # dataset frames per GNS step (None: 1, or the checkpoint's on --resume / --init)
-    pushforward: int = 0  # each step first unrolls n ~ U{0..pushforward} steps without gradient (0: one-step)
-
-
-@dataclass(frozen=True)
-class Limit:
-    lo: float
-    hi: float
-    unit: str = ""
-    lo_open: bool = False  # (lo, hi] instead of [lo, hi]
-
-
-# The allowed values of the settings a user gives, by TrainConfig (and NetworkConfig) field, one
-# table: `runout train` checks its options against it before any work, train() its settings.
-SETTING_LIMITS = {
-    "steps": Limit(1, MAX_STEPS), "batch_size": Limit(1, 64), "lr_init": Limit(0.0, 1.0, lo_open=True),
-    "lr_decay_steps": Limit(1.0, 1e12), "noise": Limit(0.0, 10.0, " velocity std"),
-    "static_tail": Limit(0, 1_000_000, " frames"), "moving_weight": Limit(1.0, 1000.0),
-    "save_every": Limit(1, 1_000_000_000), "log_every": Limit(1, 1_000_000_000), "valid_every": Limit(0, 1_000_000_000),
-    "valid_trajectories": Limit(1, 10_000), "valid_frames": Limit(0, MAX_FRAMES), "max_hours": Limit(0.0, 1000.0, " h"),
-    "radius": Limit(0.1, 1000.0, " m"), "frame_stride": Limit(*SCHEMA_LIMITS["frame_stride"]),
-    "pushforward": Limit(*PUSHFORWARD_LIMITS),
-    **{name: Limit(lo, hi) for name, (lo, hi) in NETWORK_LIMITS.items()},
-}
-OPTION_NAMES = {"lr_init": "--lr"}  # the `runout train` options not named --field-name
-
-
-def option_name(setting: str) -> str:
-    """The `runout train` option that sets a TrainConfig or NetworkConfig field."""
-    return OPTION_NAMES.get(setting, "--" + setting.replace("_", "-"))
-
-
-def check_settings(cfg: TrainConfig, names=tuple(SETTING_LIMITS)) -> None:
-    """InputError naming the option of the first of the settings `names` outside
-    SETTING_LIMITS (None: not given, passes); whole numbers where the field is an int."""
-    for owner in (cfg, cfg.network):
-        for f in fields(owner):
-            value, limit = getattr(owner, f.name), SETTING_LIMITS.get(f.name)
-            if f.name in names and limit is not None and value is not None:
-                checks.number(value, option_name(f.name), None, limit.lo, limit.hi, limit.unit, limit.lo_open,
-                              whole=str(f.type).startswith("int"))
 
 
 def learning_rate(step: int, cfg: TrainConfig) -> float:

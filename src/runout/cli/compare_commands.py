@@ -8,7 +8,7 @@ from pathlib import Path
 import typer
 
 from runout.cli.app import app
-from runout.mpm.cache import DEFAULT_CACHE
+from runout.defaults import MPM_CACHE as DEFAULT_CACHE
 
 
 @app.command()

@@ -17,11 +17,9 @@ import typer
 
 from runout.cli.app import app
 from runout.errors import InputError
-from runout.evaluate.columns import ColumnGrid
-from runout.evaluate.diagnostics import PAPER_CASE
-from runout.evaluate.scenes import EXAMPLES
-from runout.evaluate.sensitivity import SensitivityConfig
-from runout.mpm.cache import DEFAULT_CACHE
+from runout.defaults import MPM_CACHE as DEFAULT_CACHE
+from runout.evaluate.cases import PAPER_CASE, ColumnGrid, SensitivityConfig
+from runout.scene import EXAMPLES
 
 evaluate_app = typer.Typer(
     help="Measure a GNS model against the MPM: the paper's column, slope, diagnostics, inverse and data-size studies.",

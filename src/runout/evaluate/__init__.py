@@ -10,18 +10,24 @@ engines; MPM runs are cached on disk by scene (runout.mpm.cache).
 See docs/evaluation.md.
 """
 
-from runout.evaluate.columns import ColumnGrid, run_columns
-from runout.evaluate.diagnostics import PAPER_CASE, run_diagnostics
-from runout.evaluate.engines import EngineRun
-from runout.evaluate.inverse_study import run_inverse
-from runout.evaluate.report import write_report
-from runout.evaluate.scenes import ColumnCase, column_file, column_scene, model_scene, scaled
-from runout.evaluate.sensitivity import SensitivityConfig, run_sensitivity
-from runout.evaluate.slope import run_slope
-from runout.mpm.cache import DEFAULT_CACHE, MpmCache, scene_key
+from importlib import import_module
 
-__all__ = [
-    "DEFAULT_CACHE", "PAPER_CASE", "ColumnCase", "ColumnGrid", "EngineRun", "MpmCache", "SensitivityConfig",
-    "column_file", "column_scene", "model_scene", "run_columns", "run_diagnostics", "run_inverse", "run_sensitivity",
-    "run_slope", "scaled", "scene_key", "write_report",
-]
+# Each name and the module that owns it; a study's engines load only when it is used, so the
+# command line (which reads the cases) starts without torch.
+_OWNERS = {
+    "ColumnCase": "cases", "ColumnGrid": "cases", "PAPER_CASE": "cases", "SensitivityConfig": "cases",
+    "run_columns": "columns", "run_diagnostics": "diagnostics", "EngineRun": "engines",
+    "run_inverse": "inverse_study", "write_report": "report", "column_file": "scenes", "column_scene": "scenes",
+    "model_scene": "scenes", "scaled": "scenes", "run_sensitivity": "sensitivity", "run_slope": "slope",
+}
+_MPM = {"DEFAULT_CACHE", "MpmCache", "scene_key"}  # runout.mpm.cache
+
+__all__ = sorted([*_OWNERS, *_MPM])
+
+
+def __getattr__(name: str):
+    if name in _MPM:
+        return getattr(import_module("runout.mpm.cache"), name)
+    if name in _OWNERS:
+        return getattr(import_module(f"runout.evaluate.{_OWNERS[name]}"), name)
+    raise AttributeError(f"module 'runout.evaluate' has no attribute {name!r}")

@@ -15,7 +15,6 @@ evolution_p25.png, evolution_p50.png, evolution_p75.png and gns/<case>/ trajecto
 from __future__ import annotations
 
 import csv
-import itertools
 import json
 import shutil
 import time
@@ -28,7 +27,8 @@ from tqdm.auto import tqdm
 from runout.evaluate.column_figures import draw_error_heatmaps, draw_evolution, draw_runout_comparison
 from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
-from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_file, column_scene, model_scene
+from runout.evaluate.cases import PAPER_ASPECTS, PAPER_COHESIONS, PAPER_PHIS, ColumnCase, ColumnGrid  # noqa: F401  (re-exported)
+from runout.evaluate.scenes import column_file, column_scene, model_scene
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
 from runout.metrics import (
@@ -37,27 +37,11 @@ from runout.metrics import (
 from runout.mpm.cache import MpmCache
 from runout.trajectory import Trajectory, load_trajectory, save_trajectory
 
-PAPER_ASPECTS = (0.5, 1.0, 2.0)
-PAPER_PHIS = (0.0, 11.25, 22.5, 33.75, 45.0)  # degrees
-PAPER_COHESIONS = (10.0, 25.0, 40.0, 55.0, 70.0)  # kPa
 PERCENTILES = (25, 50, 75)  # error percentiles whose cases get a time-evolution figure
 CSV_COLUMNS = (
     "case", "aspect", "phi_deg", "cohesion_kpa", "L0_m", "Lf_mpm_m", "Lf_gns_m",
     "runout_norm_mpm", "runout_norm_gns", "ape_percent", "frames", "gns_wall_s", "mpm_key",
 )
-
-
-@dataclass
-class ColumnGrid:
-    aspects: tuple[float, ...] = PAPER_ASPECTS
-    phis: tuple[float, ...] = PAPER_PHIS
-    cohesions: tuple[float, ...] = PAPER_COHESIONS
-    frames: int = 600
-    scale: float = 1.0
-    examples: Path = EXAMPLES
-
-    def cases(self) -> list[ColumnCase]:
-        return [ColumnCase(a, p, c) for a, p, c in itertools.product(self.aspects, self.phis, self.cohesions)]
 
 
 @dataclass

@@ -21,13 +21,13 @@ import numpy as np
 from runout.evaluate.diagnostics_figures import draw_diagnostics
 from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
-from runout.evaluate.scenes import EXAMPLES, ColumnCase, column_file, column_scene, model_scene
+from runout.evaluate.cases import PAPER_CASE, ColumnCase  # noqa: F401  (PAPER_CASE re-exported)
+from runout.evaluate.scenes import EXAMPLES, column_file, column_scene, model_scene
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
 from runout.metrics import at_common_times, velocities
 from runout.trajectory import Trajectory, save_trajectory
 
-PAPER_CASE = ColumnCase(aspect=2.0, phi=11.25, cohesion=10.0)
 PAPER_FRAMES = (80, 200)  # and the last frame
 
 

@@ -11,12 +11,12 @@ on a few hundred points in a test; scale 1 is the paper's geometry.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 
 from runout import checks
 from runout.errors import InputError
-from runout.gns.rollout import at_model_spacing
+from runout.evaluate.cases import ColumnCase
 from runout.scene import EXAMPLES, Scene, load_scene
 
 COLUMN_ASPECTS = (0.5, 1.0, 2.0)  # H0 / L0 of examples/column_a{a}.toml
@@ -33,6 +33,8 @@ def example_scene(examples: Path, name: str) -> Scene:
 def model_scene(examples: Path, name: str, simulator, log=None) -> Scene:
     """EXAMPLES/name filled at the model's point spacing; `log` gets one line when the
     scene's own cells differ."""
+    from runout.gns.rollout import at_model_spacing  # the engines only when a model is given
+
     return at_model_spacing(example_scene(examples, name), simulator, name, log)
 
 
@@ -51,17 +53,6 @@ def scaled(scene: Scene, scale: float) -> Scene:
     domain = replace(scene.domain, width=whole(scene.domain.width), height=whole(scene.domain.height))
     regions = tuple(replace(r, polygon=tuple((x * scale, y * scale) for x, y in r.polygon)) for r in scene.regions)
     return replace(scene, domain=domain, regions=regions)
-
-
-@dataclass(frozen=True)
-class ColumnCase:
-    aspect: float  # H0 / L0
-    phi: float  # degrees
-    cohesion: float  # kPa
-
-    @property
-    def name(self) -> str:
-        return f"column_a{self.aspect:g}_phi{self.phi:g}_c{self.cohesion:g}"
 
 
 def column_file(aspect: float) -> str:

@@ -20,7 +20,6 @@ import itertools
 import json
 import math
 import shutil
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +30,7 @@ from runout.contract import FeatureSchema
 from runout.dataset import split_trajectories
 from runout.defaults import FRAME_DT
 from runout.errors import InputError
+from runout.evaluate.cases import BUDGETS, PAPER_SIZES, SensitivityConfig  # noqa: F401  (re-exported)
 from runout.evaluate.model_card import model_card
 from runout.evaluate.sensitivity_figures import draw_loss_histories, draw_rollout_mse
 from runout.gns.checkpoint import load_simulator
@@ -40,29 +40,6 @@ from runout.metrics import position_mse
 from runout.simfiles import iter_simulations, read_metadata, write_simulations
 from runout.train import CHECKPOINT, TrainConfig, train
 
-PAPER_SIZES = (10, 50, 100, 250, 500, 750, 1000)
-BUDGETS = ("steps", "epochs")
-
-
-@dataclass
-class SensitivityConfig:
-    data: Path  # dataset folder: train.npz, metadata.json and the held-out split
-    init: Path  # checkpoint every subset is fine-tuned from
-    sizes: tuple[int, ...] = PAPER_SIZES
-    steps: int = 4_500_000  # fixed-step budget
-    epochs: int = 10  # fixed-epoch budget
-    held_out: int = 20  # held-out simulations rolled out per model
-    split: str = "test"
-    batch_size: int = 2
-    device: str = "cpu"
-    progress: bool = True
-
-    def check(self) -> None:
-        if not self.sizes or min(self.sizes) < 1:
-            raise InputError(f"--sizes {','.join(map(str, self.sizes))} must be positive whole numbers.")
-        for name, value in (("--steps", self.steps), ("--epochs", self.epochs), ("--held-out", self.held_out)):
-            if value < 1:
-                raise InputError(f"{name} = {value} must be a positive whole number.")
 
 
 def run_sensitivity(cfg: SensitivityConfig, out: Path) -> dict:

@@ -28,13 +28,12 @@ from pathlib import Path
 import torch
 
 from runout import checks
-from runout.contract import MAX_RADIUS, FeatureSchema
+from runout.contract import MAX_RADIUS, MAX_STEPS, FeatureSchema  # noqa: F401  (MAX_STEPS re-exported)
 from runout.errors import InputError
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 
 FORMAT = "runout-gns-1"
 REQUIRED_KEYS = ("format", "schema", "stats", "radius", "network", "model")
-MAX_STEPS = 1_000_000_000  # the most training steps a checkpoint may record (as `runout train --steps` allows)
 
 
 def checkpoint_dict(simulator: Simulator, **training_state) -> dict:

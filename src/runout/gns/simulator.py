@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
-from runout.contract import FeatureSchema, spacing_for_radius
+from runout.contract import NETWORK_LIMITS, FeatureSchema, NetworkConfig, spacing_for_radius  # noqa: F401  (NetworkConfig, NETWORK_LIMITS re-exported)
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.gns.graph import radius_graph
 from runout.gns.network import EncodeProcessDecode
@@ -70,29 +70,8 @@ class Normalisation:
 # m / step: noise far beyond any per-step displacement of soil, yet above the largest noise
 # `runout train` allows (10 m/s x 0.0375 s x 16 frames = 6 m)
 MAX_NOISE_PER_STEP = 10.0
-# Allowed layer sizes: [lowest, highest] of each NetworkConfig field.
-NETWORK_LIMITS = {"latent": (1, 1024), "hidden": (1, 1024), "hidden_layers": (1, 8), "message_passing_steps": (1, 50)}
-
-
 def _finite(x) -> bool:
     return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
-
-
-@dataclass(frozen=True)
-class NetworkConfig:
-    latent: int = 128
-    hidden: int = 128
-    hidden_layers: int = 2
-    message_passing_steps: int = 10
-
-    @staticmethod
-    def problem(d: dict) -> str | None:
-        """The first layer size outside NETWORK_LIMITS, as a phrase, or None."""
-        for key, (lo, hi) in NETWORK_LIMITS.items():
-            v = d.get(key, getattr(NetworkConfig, key))
-            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-                return f"{key} = {v!r} is outside the allowed range [{lo}, {hi}] (a whole number)"
-        return None
 
 
 @dataclass(frozen=True)

@@ -15,11 +15,12 @@ import platform
 from dataclasses import dataclass
 from pathlib import Path
 
+from runout.defaults import MPM_CACHE
 from runout.mpm import SOLVER_VERSION, simulate
 from runout.scene import Scene, scene_to_toml
 from runout.trajectory import Trajectory, load_trajectory, save_trajectory
 
-DEFAULT_CACHE = Path.home() / ".cache" / "runout" / "mpm"
+DEFAULT_CACHE = MPM_CACHE
 
 
 def scene_key(scene: Scene, solver_version: str = SOLVER_VERSION) -> str:
