@@ -1,5 +1,6 @@
 """What buys GNS training steps per CPU-second (issue: the GNS recipe, item 4): eager against
-torch.compile of the network, bfloat16 autocast, one process with T threads against two gloo
+torch.compile of the network, bfloat16 autocast, recomputing the processor's activations in
+backward (the default, less memory) against keeping them, one process with T threads against two gloo
 ranks of one thread each (DistributedDataParallel, as torchrun runs `runout train`), and the
 connectivity radius (in point spacings; the default is 2.3).
 
@@ -54,7 +55,8 @@ def measure(data_dir: Path, kind: str, steps: int, warmup: int, rank: int = 0, w
         simulator.network = torch.compile(simulator.network, dynamic=True)
     if world > 1:
         model = torch.nn.parallel.DistributedDataParallel(simulator)
-    cfg = TrainConfig(data=data_dir, out=Path("."), bf16=kind == "bf16", noise=0.3, exact_rest=True)
+    cfg = TrainConfig(data=data_dir, out=Path("."), bf16=kind in ("bf16", "bf16-keep"), noise=0.3, exact_rest=True,
+                      checkpoint_layers=kind not in ("keep", "bf16-keep"))
     optimizer = torch.optim.Adam(simulator.parameters(), lr=1e-4)
     ctx = Context(device, rank, world)
     for step in range(warmup):
@@ -93,7 +95,8 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path("data/ft8"))
     ap.add_argument("--configs", nargs="+", default=["eager:1", "eager:2", "bf16:1", "bf16:2", "compile:1", "gloo:2"],
-                    help="KIND:THREADS, KIND one of eager, bf16, compile, gloo (THREADS = ranks), rS (radius S spacings)")
+                    help="KIND:THREADS, KIND one of eager, bf16, compile, gloo (THREADS = ranks), rS (radius S spacings), "
+                         "keep and bf16-keep (every processor activation kept for backward instead of recomputed)")
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--warmup", type=int, default=20)
     args = ap.parse_args()
