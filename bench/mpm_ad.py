@@ -8,7 +8,7 @@ of the upper shell and c of the core; P = 8: phi and c of all four materials.
 
     .venv/bin/python bench/mpm_ad.py [--frames 160] [--threads 1] [--fd-step 0.01] [--sizes 1,3,8]
                                      [--scene examples/small_dam.toml] [--cell-size M] [--compile]
-                                     [--repeat 3]
+                                     [--repeat 3] [--backend warp]
 
 Both engines are warmed up by one evaluation at the first size before anything is timed (the
 first autograd pass of a process, and with --compile torch.compile's compilation); the first
@@ -16,6 +16,7 @@ calls' seconds are printed apart. Each engine is then timed --repeat times, the 
 engines alternating, and the fastest evaluation of each is reported (on a shared machine the
 slower ones measure the other jobs). --compile runs both engines' substep through torch.compile
 (mpm-fd: runout.mpm.simulate(compile=True); mpm-ad: DifferentiableMpm(compile=True)).
+--backend warp runs mpm-ad's MPM and its adjoint on the fused Warp kernels (runout.mpm.kernels_ad).
 
 --scene examples/dam.toml --cell-size 8 --frames 400 runs the paper's dam (section 5.2) at the
 CPU models' resolution instead (its materials have the same names).
@@ -88,12 +89,13 @@ def main() -> None:
     ap.add_argument("--cell-size", type=float, default=None, help="refill the scene at this cell size (m)")
     ap.add_argument("--compile", action="store_true", help="torch.compile the substep in both engines")
     ap.add_argument("--repeat", type=int, default=3, help="timed evaluations per engine and size (fastest kept)")
+    ap.add_argument("--backend", choices=("torch", "warp"), default="torch", help="the MPM under mpm-ad")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     scene = bench_scene(args.scene, args.frames, args.cell_size)
     print(f"{args.scene.name} at {scene.domain.cell_size:g} m cells; load average {os.getloadavg()[0]:.2f}, "
           f"{args.threads} thread(s), {args.frames} frames, fd step {args.fd_step}, "
-          f"{'torch.compile' if args.compile else 'eager'}")
+          f"{'torch.compile' if args.compile else 'eager'}, mpm-ad on {args.backend}")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         write_target(folder, scene)
@@ -104,7 +106,7 @@ def main() -> None:
             spec = load_inverse_spec(write_spec(folder, FREE[:p], args.frames - 1))
             observation = load_observation(spec)
             start = np.array([q.initial for q in spec.free])  # the spec's order: grouped by material
-            ad_engine = MpmAutodiff(spec, observation, compile=args.compile)
+            ad_engine = MpmAutodiff(spec, observation, compile=args.compile, backend=args.backend)
             fd_engine = MpmFiniteDifference(spec, observation, step=args.fd_step, compile=args.compile)
             if p == sizes[0]:  # warm-up: one-off set-up of the first autograd pass, and compilation
                 for name, engine in (("mpm-fd", fd_engine), ("mpm-ad", ad_engine)):  # each compiles its own

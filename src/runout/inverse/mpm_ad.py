@@ -28,14 +28,17 @@ class MpmAutodiff:
 
     compile=True runs the MPM's substeps through torch.compile (runout.mpm.differentiable):
     ~6x faster per evaluation on a CPU once compiled, but the first evaluation compiles four
-    graphs (2-3 minutes on a 2-core CPU; seconds in later processes, from torch's disk cache)."""
+    graphs (2-3 minutes on a 2-core CPU; seconds in later processes, from torch's disk cache).
+    backend="warp" runs the MPM and its adjoint on the fused Warp kernels (runout.mpm.kernels_ad)."""
 
-    def __init__(self, spec: InverseSpec, observation: Observation, device: str = "cpu", compile: bool = False):
+    def __init__(self, spec: InverseSpec, observation: Observation, device: str = "cpu", compile: bool = False,
+                 backend: str = "torch"):
         from runout.mpm.differentiable import DifferentiableMpm
 
         check_ad_budget(spec, observation, device)
         self.device = torch.device(device)
-        self.model = DifferentiableMpm(spec.scene, observation.frames, self.device, torch.float64, compile=compile)
+        self.model = DifferentiableMpm(spec.scene, observation.frames, self.device, torch.float64, compile=compile,
+                                       backend=backend)
         f64 = dict(dtype=torch.float64, device=self.device)
         names = spec.scene.material_names
         self.table = torch.tensor(material_table(spec.scene), **f64)  # [M, 2] phi (degrees), c (kPa)

@@ -15,6 +15,13 @@ results agree to rounding (the sums run in another order). The kernels read and 
 tensors of solver.Points in place (wp.from_torch: no copies), so everything around the substep
 (relaxation schedule, frames, energies) stays in torch.
 
+g2p and update_points read the old state (PointArrays) and write the new one (NewState): the
+plain run points both at the same tensors (each thread reads its point before writing it), the
+differentiable run (runout.mpm.kernels_ad) at new arrays, since Warp's adjoint of a kernel needs
+its inputs unchanged. For the same reason the loops have fixed bounds and the functions' kinks
+(sqrt at 0, the caps) are branches whose slopes are torch's (the slope at a cap itself passes,
+as torch.clamp's does): values are unchanged, and the adjoints are those of torch autograd.
+
 Warp compiles the module once per source version and caches the binary on disk in
 warp.config.kernel_cache_dir (default ~/.cache/warp/<warp version>/); a later process loads it in
 0.04 s. The first compile (CPU backend, forward and adjoint code) took 5.5 s on one core of a
@@ -38,6 +45,7 @@ from runout.mpm.solver import DILUTE, LOOSE, PAD, Grid, Points
 Real = wp.float64  # every real number of the substep; literals must carry it (Warp does not mix widths)
 NODE = wp.constant(wp.vec3d(0.0, 1.0, 2.0))  # stencil node index a as a real: NODE[a] (Real(a) would retype the loop index)
 FREE = 2**31 - 1  # a point's last stress-updating relaxation step when it has none (a normal run)
+MAX_RULES = 4  # constraints on one node (a side wall, the base or top, the fixed ground): a fixed loop bound
 
 
 # ---------------------------------------------------------------- state as Warp structs
@@ -48,7 +56,6 @@ class PointArrays:
     """solver.Points as Warp arrays, sharing the torch tensors' memory."""
 
     x: wp.array(dtype=wp.vec2d)  # m
-    x_next: wp.array(dtype=wp.vec2d)  # m: g2p's move, taken by update_points (it needs the old x)
     v: wp.array(dtype=wp.vec2d)  # m/s
     C: wp.array(dtype=wp.mat22d)  # APIC affine velocity, 1/s
     stress: wp.array(dtype=wp.vec4d)  # (sxx, syy, sxy, szz) Pa
@@ -60,6 +67,19 @@ class PointArrays:
     ny: wp.array(dtype=wp.int32)  # nodes per grid column of the point's scene
     wave_rate: wp.array(dtype=Real)  # c_p / dx, 1/s
     last_stress_step: wp.array(dtype=wp.int32)  # relaxation: the point's stress is updated while k < this
+
+
+@wp.struct
+class NewState:
+    """Where a substep writes the points' new state: PointArrays' own arrays for the plain run."""
+
+    x_moved: wp.array(dtype=wp.vec2d)  # m: g2p's move, taken by update_points (it needs the old x)
+    C_grid: wp.array(dtype=wp.mat22d)  # g2p's C, read by update_points
+    x: wp.array(dtype=wp.vec2d)
+    v: wp.array(dtype=wp.vec2d)
+    C: wp.array(dtype=wp.mat22d)  # C_grid, zero for loose clods
+    stress: wp.array(dtype=wp.vec4d)
+    volume: wp.array(dtype=Real)
 
 
 @wp.struct
@@ -129,6 +149,23 @@ def sign0(a: Real):
 
 
 @wp.func
+def magnitude(a: Real):
+    """|a| with torch's slope 0 at 0 (wp.abs has slope 1 there)."""
+    return sign0(a) * a
+
+
+@wp.func
+def radius(a: Real, b: Real):
+    """sqrt(a^2 + b^2), with slope 0 where it is 0 (sqrt's is infinite): torch's vector norm,
+    and mohr_coulomb.mohr_radius under autograd."""
+    r2 = a * a + b * b
+    r = Real(0.0)
+    if r2 > Real(0.0):
+        r = wp.sqrt(r2)
+    return r
+
+
+@wp.func
 def coulomb(v: wp.vec2d, n: wp.vec2d, mu: Real):
     """solver._coulomb for one node: remove the velocity into the surface, then reduce the
     tangential velocity by mu times the removed normal velocity; mu = inf sticks."""
@@ -138,8 +175,13 @@ def coulomb(v: wp.vec2d, n: wp.vec2d, mu: Real):
     vt = v - vn * n
     if wp.isinf(mu):
         return wp.vec2d(Real(0.0), Real(0.0))
-    speed = wp.sqrt(vt[0] * vt[0] + vt[1] * vt[1])
-    return vt * wp.max(Real(1.0) + mu * vn / wp.max(speed, Real(1e-12)), Real(0.0))
+    speed = radius(vt[0], vt[1])
+    if speed < Real(1e-12):
+        speed = Real(1e-12)
+    scale = Real(1.0) + mu * vn / speed
+    if scale < Real(0.0):
+        scale = Real(0.0)
+    return vt * scale
 
 
 @wp.func
@@ -147,11 +189,13 @@ def mobilised(s: wp.vec4d, mat: MaterialConstants, p: int):
     """mohr_coulomb.mobilised: t / (c cos phi - s sin phi) capped at 1; 1 at or beyond the apex; 0 elastic."""
     if mat.plastic[p] == 0:
         return Real(0.0)
-    d = Real(0.5) * (s[0] - s[1])
-    t = wp.sqrt(d * d + s[2] * s[2])
+    t = radius(Real(0.5) * (s[0] - s[1]), s[2])
     t_a = mat.c_cos[p] - Real(0.5) * (s[0] + s[1]) * mat.sin_phi[p]
     if t_a > Real(0.0):
-        return wp.min(t / t_a, Real(1.0))
+        share = t / t_a
+        if share > Real(1.0):
+            share = Real(1.0)
+        return share
     return Real(1.0)
 
 
@@ -164,7 +208,7 @@ def return_map(st: wp.vec4d, mat: MaterialConstants, p: int):
         return st
     s = Real(0.5) * (st[0] + st[1])
     d = Real(0.5) * (st[0] - st[1])
-    t = wp.sqrt(d * d + st[2] * st[2])
+    t = radius(d, st[2])
     s1 = s + t
     s3 = s - t
     sin = mat.sin_phi[p]
@@ -280,21 +324,32 @@ def grid_update(nodes: NodeArrays, gravity_dt: Real, damping: Real):
         dv = nodes.impulse[n] / m
     dv = wp.vec2d(dv[0], dv[1] - gravity_dt)
     if damping > Real(0.0):
-        dv = wp.vec2d(dv[0] - damping * wp.abs(dv[0]) * sign0(before[0]),
-                      dv[1] - damping * wp.abs(dv[1]) * sign0(before[1]))
+        dv = wp.vec2d(dv[0] - damping * magnitude(dv[0]) * sign0(before[0]),
+                      dv[1] - damping * magnitude(dv[1]) * sign0(before[1]))
     v = wp.vec2d(Real(0.0), Real(0.0))
     if m > Real(0.0):
         v = before + dv
-    for r in range(nodes.rules[n]):
-        v = coulomb(v, nodes.normal[n, r], nodes.mu[n, r])
+    for r in range(MAX_RULES):
+        if r < nodes.rules[n]:
+            v = coulomb(v, nodes.normal[n, r], nodes.mu[n, r])
     if nodes.stuck[n] != 0:
         v = wp.vec2d(Real(0.0), Real(0.0))
     nodes.velocity[n] = v
     nodes.velocity_before[n] = before
 
 
+@wp.func
+def clamp(a: Real, low: Real, high: Real):
+    """a within [low, high], its slope passing at the bounds themselves (torch.clamp)."""
+    if a < low:
+        return low
+    if a > high:
+        return high
+    return a
+
+
 @wp.kernel
-def g2p(pts: PointArrays, nodes: NodeArrays, dx: Real, dt: Real, flip: Real, wave: int):
+def g2p(pts: PointArrays, nodes: NodeArrays, dx: Real, dt: Real, flip: Real, wave: int, out: NewState):
     """Velocity, APIC C, FLIP blend and the clamped move (solver.g2p); then m tr(C) to the nodes."""
     p = wp.tid()
     first, fx = stencil_origin(pts.x[p], Real(1.0) / dx, pts.node_base[p], pts.ny[p])
@@ -315,12 +370,12 @@ def g2p(pts: PointArrays, nodes: NodeArrays, dx: Real, dt: Real, flip: Real, wav
     share = flip
     if wave != 0:
         share = wp.exp(-dt * pts.wave_rate[p])  # FLIP_WAVE: a fixed decay rate in time
-    pts.v[p] = share * (pts.v[p] + v_pic - v_old) + (Real(1.0) - share) * v_pic
-    pts.C[p] = C
+    out.v[p] = share * (pts.v[p] + v_pic - v_old) + (Real(1.0) - share) * v_pic
+    out.C_grid[p] = C
     eps = Real(1e-4) * dx
     x = pts.x[p] + dt * v_pic  # positions follow the grid (PIC) velocity
     upper = pts.upper[p]
-    pts.x_next[p] = wp.vec2d(wp.min(wp.max(x[0], eps), upper[0] - eps), wp.min(wp.max(x[1], eps), upper[1] - eps))
+    out.x_moved[p] = wp.vec2d(clamp(x[0], eps, upper[0] - eps), clamp(x[1], eps, upper[1] - eps))
     m_tr = pts.mass[p] * (C[0, 0] + C[1, 1])
     for a in range(3):
         for b in range(3):
@@ -329,7 +384,7 @@ def g2p(pts: PointArrays, nodes: NodeArrays, dx: Real, dt: Real, flip: Real, wav
 
 @wp.kernel
 def update_points(pts: PointArrays, mat: MaterialConstants, nodes: NodeArrays, dx: Real, dt: Real,
-                  step: int, hold: int):
+                  step: int, hold: int, out: NewState):
     """Stress and volume from L = C + w (tr_avg - tr C) / 2 I (solver.velocity_gradient), then
     dilute points lose their stress and loose clods their C. hold (geostatic relaxation): the
     point stays where it was, and its stress changes only while step < last_stress_step."""
@@ -344,23 +399,27 @@ def update_points(pts: PointArrays, mat: MaterialConstants, nodes: NodeArrays, d
             m = nodes.mass[node]
             if m > Real(0.0):
                 tr_avg += (wx[a] * wy[b]) * (nodes.volumetric[node] / m)
-    C = pts.C[p]
+    C = out.C_grid[p]
     s = pts.stress[p]
     shift = Real(0.5) * mobilised(s, mat, p) * (tr_avg - (C[0, 0] + C[1, 1]))
     L = C + wp.mat22d(shift, Real(0.0), Real(0.0), shift)
     s = update_stress(s, L, dt, mat, p)
     j = (Real(1.0) + dt * L[0, 0]) * (Real(1.0) + dt * L[1, 1]) - dt * dt * L[0, 1] * L[1, 0]  # det(I + dt L)
     volume = pts.volume[p] * j
-    pts.volume[p] = volume
     rest = pts.rest_volume[p]
     if volume > Real(DILUTE) * rest:  # dilute: no contacts, no stress
         s = wp.vec4d(Real(0.0), Real(0.0), Real(0.0), Real(0.0))
     if volume > Real(LOOSE) * rest:  # loose clod: no affine velocity
-        pts.C[p] = wp.mat22d(Real(0.0), Real(0.0), Real(0.0), Real(0.0))
-    if step < pts.last_stress_step[p]:
-        pts.stress[p] = s
+        C = wp.mat22d(Real(0.0), Real(0.0), Real(0.0), Real(0.0))
+    if step >= pts.last_stress_step[p]:
+        s = pts.stress[p]
+    x = pts.x[p]
     if hold == 0:
-        pts.x[p] = pts.x_next[p]
+        x = out.x_moved[p]
+    out.volume[p] = volume
+    out.C[p] = C
+    out.stress[p] = s
+    out.x[p] = x
 
 
 # ---------------------------------------------------------------- the launcher
@@ -393,13 +452,14 @@ class WarpSubstep:
         self.stream = wp.stream_from_torch(pts.x.device) if pts.x.is_cuda else None  # torch's, so no race with it
         self.n_points = len(pts.x)
         self.n_nodes = grid.size
-        self.nodes = self._nodes(grid)
+        self.nodes = node_arrays(grid, self.device)
         self.mat = material_constants(pts.mat)
         self._ints = {name: getattr(pts, name).to(torch.int32).contiguous() for name in ("node_base", "ny")}
         self._last_step = torch.full((self.n_points,), FREE, dtype=torch.int32, device=pts.x.device)
         self._x_next = torch.empty_like(pts.x)
         self._bound: tuple | None = None
         self.arrays = PointArrays()
+        self.new = NewState()
 
     def __call__(self, pts: Points, grid: Grid, dt: float, flip: float | str = FLIP_WAVE, damping: float = 0.0) -> None:
         """One substep of dt seconds, in place (solver.substep's signature)."""
@@ -423,8 +483,8 @@ class WarpSubstep:
         self._run(clear_grid, n, nodes)
         self._run(p2g, p, arrays, nodes, dx, dt * (4.0 / dx**2))
         self._run(grid_update, n, nodes, GRAVITY * dt, float(damping))
-        self._run(g2p, p, arrays, nodes, dx, dt, share, wave)
-        self._run(update_points, p, arrays, self.mat, nodes, dx, dt, step, hold)
+        self._run(g2p, p, arrays, nodes, dx, dt, share, wave, self.new)
+        self._run(update_points, p, arrays, self.mat, nodes, dx, dt, step, hold, self.new)
 
     def _run(self, kernel, dim: int, *inputs) -> None:
         wp.launch(kernel, dim=dim, inputs=list(inputs), device=self.device, stream=self.stream)
@@ -440,7 +500,6 @@ class WarpSubstep:
                 raise ValueError("the Warp MPM kernels need contiguous point tensors")
         a = self.arrays
         a.x = wp.from_torch(pts.x, dtype=wp.vec2d)
-        a.x_next = wp.from_torch(self._x_next, dtype=wp.vec2d)
         a.v = wp.from_torch(pts.v, dtype=wp.vec2d)
         a.C = wp.from_torch(pts.C, dtype=wp.mat22d)
         a.stress = wp.from_torch(pts.stress, dtype=wp.vec4d)
@@ -452,33 +511,46 @@ class WarpSubstep:
         a.ny = wp.from_torch(self._ints["ny"])
         a.wave_rate = wp.from_torch(pts.wave_rate.contiguous())
         a.last_stress_step = wp.from_torch(self._last_step)
+        new = self.new  # in place: the new state overwrites the old, point by point
+        new.x_moved = wp.from_torch(self._x_next, dtype=wp.vec2d)
+        new.C_grid = new.C = a.C
+        new.x, new.v, new.stress, new.volume = a.x, a.v, a.stress, a.volume
         self._bound = key
         return a
 
-    def _nodes(self, grid: Grid) -> NodeArrays:
-        """Each node's constraints in the order solver.grid_update applies them, and the stuck nodes."""
-        count = np.zeros(grid.size, dtype=np.int32)
-        for c in grid.constraints:
-            count[c.ids.cpu().numpy()] += 1
-        width = max(1, int(count.max(initial=0)))
-        normal = np.zeros((grid.size, width, 2))
-        mu = np.zeros((grid.size, width))
-        slot = np.zeros(grid.size, dtype=np.int32)
-        for c in grid.constraints:
-            ids = c.ids.cpu().numpy()
-            normal[ids, slot[ids]] = c.normal.cpu().numpy()
-            mu[ids, slot[ids]] = c.mu.cpu().numpy()
-            slot[ids] += 1
-        stuck = np.zeros(grid.size, dtype=np.int32)
-        stuck[grid.stuck.cpu().numpy()] = 1
-        dev = self.device
-        out = NodeArrays()
-        out.mass = wp.zeros(grid.size, dtype=Real, device=dev)
-        out.volumetric = wp.zeros(grid.size, dtype=Real, device=dev)
-        for name in ("momentum", "impulse", "velocity", "velocity_before"):
-            setattr(out, name, wp.zeros(grid.size, dtype=wp.vec2d, device=dev))
-        out.rules = wp.array(count, dtype=wp.int32, device=dev)
-        out.normal = wp.array(normal, dtype=wp.vec2d, device=dev)
-        out.mu = wp.array(mu, dtype=Real, device=dev)
-        out.stuck = wp.array(stuck, dtype=wp.int32, device=dev)
-        return out
+
+def node_arrays(grid: Grid, device) -> NodeArrays:
+    """Each node's constraints in the order solver.grid_update applies them, the stuck nodes, and
+    the transfer arrays."""
+    count = np.zeros(grid.size, dtype=np.int32)
+    for c in grid.constraints:
+        count[c.ids.cpu().numpy()] += 1
+    if count.max(initial=0) > MAX_RULES:
+        raise ValueError(f"a grid node is under {count.max()} constraints; the Warp kernels take at most {MAX_RULES}")
+    normal = np.zeros((grid.size, MAX_RULES, 2))
+    mu = np.zeros((grid.size, MAX_RULES))
+    slot = np.zeros(grid.size, dtype=np.int32)
+    for c in grid.constraints:
+        ids = c.ids.cpu().numpy()
+        normal[ids, slot[ids]] = c.normal.cpu().numpy()
+        mu[ids, slot[ids]] = c.mu.cpu().numpy()
+        slot[ids] += 1
+    stuck = np.zeros(grid.size, dtype=np.int32)
+    stuck[grid.stuck.cpu().numpy()] = 1
+    out = NodeArrays()
+    out.rules = wp.array(count, dtype=wp.int32, device=device)
+    out.normal = wp.array(normal, dtype=wp.vec2d, device=device)
+    out.mu = wp.array(mu, dtype=Real, device=device)
+    out.stuck = wp.array(stuck, dtype=wp.int32, device=device)
+    return with_transfers(out, requires_grad=False)
+
+
+def with_transfers(rules: NodeArrays, requires_grad: bool) -> NodeArrays:
+    """New transfer arrays (mass, momentum, ...) on the node rules of `rules`."""
+    out = NodeArrays()
+    out.rules, out.normal, out.mu, out.stuck = rules.rules, rules.normal, rules.mu, rules.stuck
+    size, device = rules.rules.shape[0], rules.rules.device
+    for name, dtype in (("mass", Real), ("volumetric", Real), ("momentum", wp.vec2d), ("impulse", wp.vec2d),
+                        ("velocity", wp.vec2d), ("velocity_before", wp.vec2d)):
+        setattr(out, name, wp.zeros(size, dtype=dtype, device=device, requires_grad=requires_grad))
+    return out
