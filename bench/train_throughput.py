@@ -10,7 +10,7 @@ real training step (runout.train._train_step), after --warmup steps (compilation
 there), and prints graphs per second: steps/s times graphs per step (2 per process).
 Measure on a quiet machine; on a loaded one, say so beside the figure.
 
-    .venv/bin/python bench/train_throughput.py --data data/ft8 --configs eager:1 eager:2 bf16:1 compile:1 gloo:2 r1.8:1 r3:1
+    .venv/bin/python bench/train_throughput.py --data data/ft8 --configs bf16:1 bf16+keep:1 bf16+keep:2 gloo+bf16+keep:2
 """
 
 from __future__ import annotations
@@ -46,17 +46,19 @@ def build(data_dir: Path, radius_spacings: float, device: torch.device) -> tuple
 
 
 def measure(data_dir: Path, kind: str, steps: int, warmup: int, rank: int = 0, world: int = 1) -> dict:
-    """Seconds per step of one process (rank of world) for configuration `kind`."""
+    """Seconds per step of one process (rank of world) for configuration `kind`: tokens joined
+    by '+', each of eager (nothing), bf16, keep (no recomputation in backward), compile, rS."""
     device = torch.device("cpu")
-    spacings = float(kind[1:]) if kind.startswith("r") else DEFAULT_SPACINGS
-    simulator, data, bounds = build(data_dir, spacings, device)
+    tokens = set(kind.split("+"))
+    radius = [float(t[1:]) for t in tokens if t.startswith("r")]
+    simulator, data, bounds = build(data_dir, radius[0] if radius else DEFAULT_SPACINGS, device)
     model = simulator
-    if kind == "compile":
+    if "compile" in tokens:
         simulator.network = torch.compile(simulator.network, dynamic=True)
     if world > 1:
         model = torch.nn.parallel.DistributedDataParallel(simulator)
-    cfg = TrainConfig(data=data_dir, out=Path("."), bf16=kind in ("bf16", "bf16-keep"), noise=0.3, exact_rest=True,
-                      checkpoint_layers=kind not in ("keep", "bf16-keep"))
+    cfg = TrainConfig(data=data_dir, out=Path("."), bf16="bf16" in tokens, noise=0.3, exact_rest=True,
+                      checkpoint_layers="keep" not in tokens)
     optimizer = torch.optim.Adam(simulator.parameters(), lr=1e-4)
     ctx = Context(device, rank, world)
     for step in range(warmup):
@@ -67,20 +69,21 @@ def measure(data_dir: Path, kind: str, steps: int, warmup: int, rank: int = 0, w
     return {"s_per_step": (time.perf_counter() - t0) / steps, "cpu_s_per_step": (time.process_time() - c0) / steps}
 
 
-def _rank(rank: int, world: int, data_dir: Path, steps: int, warmup: int, port: int, results) -> None:
+def _rank(rank: int, world: int, data_dir: Path, kind: str, steps: int, warmup: int, port: int, results) -> None:
     os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port))
     torch.set_num_threads(1)
     dist.init_process_group("gloo", rank=rank, world_size=world)
-    results[rank] = measure(data_dir, "eager", steps, warmup, rank, world)
+    results[rank] = measure(data_dir, kind, steps, warmup, rank, world)
     dist.destroy_process_group()
 
 
 def run(data_dir: Path, config: str, steps: int, warmup: int) -> dict:
     kind, threads = config.split(":")
     threads = int(threads)
-    if kind == "gloo":  # `threads` ranks of one thread each
+    if kind.startswith("gloo"):  # `threads` ranks of one thread each, e.g. gloo+bf16+keep:2
         results = mp.Manager().dict()
-        mp.spawn(_rank, args=(threads, data_dir, steps, warmup, 29500 + os.getpid() % 1000, results), nprocs=threads)
+        kind = kind.removeprefix("gloo").removeprefix("+") or "eager"
+        mp.spawn(_rank, args=(threads, data_dir, kind, steps, warmup, 29500 + os.getpid() % 1000, results), nprocs=threads)
         per_step = max(r["s_per_step"] for r in results.values())
         graphs = 2 * threads
     else:
@@ -94,9 +97,11 @@ def run(data_dir: Path, config: str, steps: int, warmup: int) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--data", type=Path, default=Path("data/ft8"))
-    ap.add_argument("--configs", nargs="+", default=["eager:1", "eager:2", "bf16:1", "bf16:2", "compile:1", "gloo:2"],
-                    help="KIND:THREADS, KIND one of eager, bf16, compile, gloo (THREADS = ranks), rS (radius S spacings), "
-                         "keep and bf16-keep (every processor activation kept for backward instead of recomputed)")
+    ap.add_argument("--configs", nargs="+",
+                    default=["bf16:1", "bf16+keep:1", "bf16+keep:2", "gloo+bf16+keep:2", "bf16+keep+compile:1", "bf16+keep+r1.8:1"],
+                    help="KIND:THREADS, KIND tokens joined by '+': eager, bf16, keep (processor activations kept for "
+                         "backward, not recomputed), compile, rS (radius S point spacings), and a leading gloo (THREADS = "
+                         "ranks of one thread each)")
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--warmup", type=int, default=20)
     args = ap.parse_args()
