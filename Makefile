@@ -26,7 +26,7 @@ test: setup
 
 bench: setup
 	$(BIN)/python bench/mpm.py --frames 20 --batches 1,8 --backends torch,warp
-	$(BIN)/python bench/mpm.py --frames 20 --batches 1,8 --compile --float32
+	$(BIN)/python bench/mpm.py --frames 20 --batches 1,8 --backends torch --compile --float32
 	$(BIN)/python bench/gns.py --repeats 2
 
 clean:

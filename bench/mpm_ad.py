@@ -8,15 +8,16 @@ of the upper shell and c of the core; P = 8: phi and c of all four materials.
 
     .venv/bin/python bench/mpm_ad.py [--frames 160] [--threads 1] [--fd-step 0.01] [--sizes 1,3,8]
                                      [--scene examples/small_dam.toml] [--cell-size M] [--compile]
-                                     [--repeat 3] [--backend warp]
+                                     [--repeat 3] [--backend torch]
 
 Both engines are warmed up by one evaluation at the first size before anything is timed (the
 first autograd pass of a process, and with --compile torch.compile's compilation); the first
 calls' seconds are printed apart. Each engine is then timed --repeat times, the two
 engines alternating, and the fastest evaluation of each is reported (on a shared machine the
-slower ones measure the other jobs). --compile runs both engines' substep through torch.compile
-(mpm-fd: runout.mpm.simulate(compile=True); mpm-ad: DifferentiableMpm(compile=True)).
---backend warp runs mpm-ad's MPM and its adjoint on the fused Warp kernels (runout.mpm.kernels_ad).
+slower ones measure the other jobs). Both engines run the fused Warp kernels (runout.mpm.kernels,
+kernels_ad), as `runout invert` does; --backend torch runs them on the torch solver, the tests'
+oracle, and --compile (torch only) its substep through torch.compile (mpm-fd:
+runout.mpm.simulate(compile=True); mpm-ad: DifferentiableMpm(compile=True)).
 
 --scene examples/dam.toml --cell-size 8 --frames 400 runs the paper's dam (section 5.2) at the
 CPU models' resolution instead (its materials have the same names).
@@ -87,15 +88,17 @@ def main() -> None:
     ap.add_argument("--sizes", default="1,3,8")
     ap.add_argument("--scene", type=Path, default=REPO / "examples" / "small_dam.toml")
     ap.add_argument("--cell-size", type=float, default=None, help="refill the scene at this cell size (m)")
-    ap.add_argument("--compile", action="store_true", help="torch.compile the substep in both engines")
+    ap.add_argument("--compile", action="store_true", help="--backend torch: torch.compile the substep in both engines")
     ap.add_argument("--repeat", type=int, default=3, help="timed evaluations per engine and size (fastest kept)")
-    ap.add_argument("--backend", choices=("torch", "warp"), default="torch", help="the MPM under mpm-ad")
+    ap.add_argument("--backend", choices=("torch", "warp"), default="warp", help="the MPM under both engines")
     args = ap.parse_args()
+    if args.compile and args.backend != "torch":
+        ap.error("--compile needs --backend torch (the Warp kernels are compiled already)")
     torch.set_num_threads(args.threads)
     scene = bench_scene(args.scene, args.frames, args.cell_size)
     print(f"{args.scene.name} at {scene.domain.cell_size:g} m cells; load average {os.getloadavg()[0]:.2f}, "
           f"{args.threads} thread(s), {args.frames} frames, fd step {args.fd_step}, "
-          f"{'torch.compile' if args.compile else 'eager'}, mpm-ad on {args.backend}")
+          f"{'torch.compile' if args.compile else 'eager'}, MPM on {args.backend}")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         write_target(folder, scene)
@@ -107,7 +110,8 @@ def main() -> None:
             observation = load_observation(spec)
             start = np.array([q.initial for q in spec.free])  # the spec's order: grouped by material
             ad_engine = MpmAutodiff(spec, observation, compile=args.compile, backend=args.backend)
-            fd_engine = MpmFiniteDifference(spec, observation, step=args.fd_step, compile=args.compile)
+            fd_engine = MpmFiniteDifference(spec, observation, step=args.fd_step, compile=args.compile,
+                                            backend=args.backend)
             if p == sizes[0]:  # warm-up: one-off set-up of the first autograd pass, and compilation
                 for name, engine in (("mpm-fd", fd_engine), ("mpm-ad", ad_engine)):  # each compiles its own
                     # graphs: mpm-fd 2 (no grad; relaxation, frame), mpm-ad 4 (also their forward and backward)

@@ -75,7 +75,7 @@ def test_compiled_is_the_same_run_and_gradient(scene):
     phi0, c0 = material_table(scene).T
     results = []
     for compile in (False, True):
-        model = DifferentiableMpm(scene, frames, compile=compile)
+        model = DifferentiableMpm(scene, frames, compile=compile, backend="torch")
         phi, c = torch.tensor(phi0, requires_grad=True), torch.tensor(c0, requires_grad=True)
         x = model(phi, c)
         (x - x.detach().mean((0, 1))).square().sum().backward()
@@ -86,7 +86,7 @@ def test_compiled_is_the_same_run_and_gradient(scene):
 
 
 def peak_bytes(scene, frames: int, checkpoint: bool) -> int:
-    model = DifferentiableMpm(scene, [frames], checkpoint=checkpoint)
+    model = DifferentiableMpm(scene, [frames], checkpoint=checkpoint, backend="torch")
     phi, c = (torch.tensor(v, requires_grad=True) for v in material_table(scene).T)
     with PeakMemory("cpu") as memory:
         model(phi, c)[-1].square().sum().backward()

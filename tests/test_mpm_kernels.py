@@ -1,6 +1,7 @@
 """The Warp kernels (runout.mpm.kernels) against the torch solver: same physics, frame by frame.
 
-Each scene runs through both backends from the same batch (runout.mpm.setup); the positions of
+The kernels are what every command runs; the torch solver (runout.mpm.solver) is kept as their
+oracle, selected here by run_batch(backend="torch") and by no option of any command. Each scene runs through both backends from the same batch (runout.mpm.setup); the positions of
 every point must agree within TOLERANCE cells at every frame, and the scene must really move,
 so that agreement is not the agreement of two points at rest."""
 
@@ -13,7 +14,7 @@ import pytest
 import torch
 import warp as wp
 
-from runout.mpm import kernels
+from runout.mpm import kernels, simulate
 from runout.mpm.batch import relax_geostatic, run_batch
 from runout.mpm.mohr_coulomb import MaterialArrays, return_map
 from runout.mpm.setup import build_batch
@@ -165,3 +166,21 @@ def test_the_warp_backend_refuses_float32_and_unknown_backends():
         run_batch(batch, 3, progress=False, backend="warp")
     with pytest.raises(ValueError, match="backend"):
         run_batch(batch, 3, progress=False, backend="jax")
+
+
+def test_users_run_the_warp_kernels_and_no_option_selects_the_torch_solver(tmp_path, monkeypatch, capsys):
+    import sys
+
+    from runout.cli import main
+
+    scene = cut_scene(8.0, 20.0, 10.0, 4.0, 3)
+    assert simulate([scene], progress=False)[0].info["backend"] == "warp"
+    batch = build_batch([scene], torch.device("cpu"), torch.float64)
+    assert run_batch(batch, 3, progress=False)[0].info["backend"] == "warp"
+    monkeypatch.setattr(sys, "argv", ["runout", "mpm", str(EXAMPLES / "column_a1.toml"), "--compile",
+                                      "--out", str(tmp_path / "o")])
+    with pytest.raises(SystemExit) as exit_info:
+        main()
+    assert exit_info.value.code == 2
+    assert "--compile" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()

@@ -113,7 +113,7 @@ def test_warp_run_and_gradient_are_the_torch_ones(scene):
     """DifferentiableMpm(backend="warp") against the torch backend through the K0 start, the
     relaxation and 12 frames: positions to 1e-12 m, gradients to 1e-9 relative (measured 1e-15)."""
     phi0, c0 = (torch.tensor(v) for v in material_table(scene).T)
-    torch_model = DifferentiableMpm(scene, FRAMES)
+    torch_model = DifferentiableMpm(scene, FRAMES, backend="torch")
     with torch.no_grad():
         target = torch_model(phi0 + torch.tensor([4.0, -3.0, 0.0]), c0 + torch.tensor([3.0, 5.0, 0.0]))
     results = []

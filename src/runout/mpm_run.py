@@ -22,7 +22,7 @@ MPM_FILES = ("trajectory.npz", "metadata.json", "initial.png", "final.png")
 
 def run_mpm(
     scene: Path, out: Path, frames: int | None = None, device: str = "cpu", animate: bool = True,
-    vtk: bool = False, compile: bool = False, force: bool = False,
+    vtk: bool = False, force: bool = False,
 ) -> tuple[Trajectory, tuple[str, ...]]:
     """Run the MPM on SCENE and write OUT/trajectory.npz + metadata.json, initial.png,
     final.png (and animation.gif, vtk/); OUT and the cost are checked before the run.
@@ -33,7 +33,7 @@ def run_mpm(
     writes = MPM_FILES + (("animation.gif",) if animate else ()) + (("vtk",) if vtk else ())
     folder = check_folder(out, "mpm", writes, force=force)
     check_budget([sc], device=device, source=str(scene))
-    traj = mpm.simulate([sc], device=device, compile=compile)[0]
+    traj = mpm.simulate([sc], device=device)[0]
     bad = traj.first_nonfinite_frame()
     if bad is not None:
         raise RunFailed(f"the MPM run of {scene} diverged (positions are not finite from frame {bad}); "

@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from runout.mpm import simulate
+from runout.mpm.batch import BACKEND
 from runout.mpm.geostatic import GRAVITY
 from runout.scene import Scene, scene_from_dict
 
@@ -154,7 +155,7 @@ def dry_envelope(a: float) -> tuple[float, float]:
 # ---------------------------------------------------------------- cases
 
 
-def case_cuts(cell: float, frames: int) -> list[tuple[CaseResult, object, str]]:
+def case_cuts(cell: float, frames: int, backend: str = BACKEND) -> list[tuple[CaseResult, object, str]]:
     """Cuts 40 m high: stand at 0.8 of the lower bound, fail at 1.3 of the upper bound."""
     height = 40.0
     out, scenes, meta = [], [], []
@@ -164,7 +165,7 @@ def case_cuts(cell: float, frames: int) -> list[tuple[CaseResult, object, str]]:
         c_fail = height * GAMMA_KPA / (1.3 * 3.83 * k)  # H = 1.3 x upper bound
         scenes += [cut_scene(height, phi, c_stand, cell, frames), cut_scene(height, phi, c_fail, cell, frames)]
         meta += [(phi, c_stand, "stands"), (phi, c_fail, "fails")]
-    for traj, (phi, c, what) in zip(simulate(scenes, progress=False), meta):
+    for traj, (phi, c, what) in zip(simulate(scenes, progress=False, backend=backend), meta):
         d = largest_displacement(traj)
         if what == "stands":
             band, ref = (0.0, 1.0), f"H = 0.8 x 2c/gamma tan(45+phi/2) must stand: largest displacement < 1 m"
@@ -176,10 +177,10 @@ def case_cuts(cell: float, frames: int) -> list[tuple[CaseResult, object, str]]:
     return out
 
 
-def case_paper_columns(cell: float, frames: int) -> list[tuple[CaseResult, object, str]]:
+def case_paper_columns(cell: float, frames: int, backend: str = BACKEND) -> list[tuple[CaseResult, object, str]]:
     scenes = [column_scene(w, h, phi, c, cell, frames) for _, w, h, phi, c, _ in PAPER_COLUMNS]
     out = []
-    for traj, (name, w, h, phi, c, ref) in zip(simulate(scenes, progress=False), PAPER_COLUMNS):
+    for traj, (name, w, h, phi, c, ref) in zip(simulate(scenes, progress=False, backend=backend), PAPER_COLUMNS):
         ln = column_normalised_runout(traj, w)
         res = CaseResult(f"column_{name}", "L^n", ln, 0.85 * ref, 1.15 * ref,
                          f"paper's MPM L^n = {ref} (within 15 %)",
@@ -189,7 +190,8 @@ def case_paper_columns(cell: float, frames: int) -> list[tuple[CaseResult, objec
     return out
 
 
-def case_dry_columns(cell: float, frames: int, aspects=DRY_ASPECTS, base: float = 100.0) -> list[tuple[CaseResult, object, str]]:
+def case_dry_columns(cell: float, frames: int, aspects=DRY_ASPECTS, base: float = 100.0,
+                     backend: str = BACKEND) -> list[tuple[CaseResult, object, str]]:
     """Dry columns (c = 0, phi 25) of fixed height... of base `base` m (taller ones narrower)."""
     shapes = []
     for a in aspects:
@@ -197,7 +199,7 @@ def case_dry_columns(cell: float, frames: int, aspects=DRY_ASPECTS, base: float 
         shapes.append((a, w, a * w))
     scenes = [column_scene(w, h, DRY_PHI, 0.0, cell, frames) for _, w, h in shapes]
     out = []
-    for traj, (a, w, h) in zip(simulate(scenes, progress=False), shapes):
+    for traj, (a, w, h) in zip(simulate(scenes, progress=False, backend=backend), shapes):
         lo, hi = dry_envelope(a)
         ln = column_normalised_runout(traj, w)
         res = CaseResult(f"dry_column_a{a:g}", "L^n", ln, 0.75 * lo, 1.25 * hi,
@@ -211,9 +213,9 @@ def case_dry_columns(cell: float, frames: int, aspects=DRY_ASPECTS, base: float 
     return out
 
 
-def case_griffiths_lane(cell: float, frames: int) -> list[tuple[CaseResult, object, str]]:
+def case_griffiths_lane(cell: float, frames: int, backend: str = BACKEND) -> list[tuple[CaseResult, object, str]]:
     scenes = [griffiths_lane_scene(1.0, cell, frames), griffiths_lane_scene(1.6, cell, frames)]
-    t_stand, t_fail = simulate(scenes, progress=False)
+    t_stand, t_fail = simulate(scenes, progress=False, backend=backend)
     return [
         (CaseResult("griffiths_lane_fs1.4", "largest displacement (m)", largest_displacement(t_stand), 0.0, 1.0,
                     "FS = 1.4 (Griffiths & Lane 1999): stands, largest displacement < 1 m"), t_stand, "slope"),
@@ -222,8 +224,9 @@ def case_griffiths_lane(cell: float, frames: int) -> list[tuple[CaseResult, obje
     ]
 
 
-def case_incline(cell: float, frames: int, theta: float = 30.0, mu: float = 0.3) -> list[tuple[CaseResult, object, str]]:
-    traj = simulate([incline_scene(theta, mu, cell, frames)], progress=False)[0]
+def case_incline(cell: float, frames: int, theta: float = 30.0, mu: float = 0.3,
+                 backend: str = BACKEND) -> list[tuple[CaseResult, object, str]]:
+    traj = simulate([incline_scene(theta, mu, cell, frames)], progress=False, backend=backend)[0]
     t = np.arange(traj.n_frames) * traj.frame_dt
     moving = traj.soil
     c0 = traj.positions[0, moving].mean(0)
@@ -238,7 +241,7 @@ def case_incline(cell: float, frames: int, theta: float = 30.0, mu: float = 0.3)
     return [(res, traj, "incline")]
 
 
-def case_convergence(cell: float, frames: int) -> list[tuple[CaseResult, object, str]]:
+def case_convergence(cell: float, frames: int, backend: str = BACKEND) -> list[tuple[CaseResult, object, str]]:
     """The paper's a = 1 column (150 m) dry, phi 30: runout L_f - L_0 at dt and dt/2, and with
     2 x 2 and 3 x 3 points per cell; and the paper's a = 1, phi 45, c 10 kPa column at dt and
     dt/2 (the steep-friction case, where the runout moves most with the time step)."""
@@ -247,8 +250,8 @@ def case_convergence(cell: float, frames: int) -> list[tuple[CaseResult, object,
     steep = column_scene(w, w, 45.0, 10.0, cell, frames)
     half = lambda scene: scene_from_dict({**_as_dict(scene), "time": {"frames": frames, "cfl": scene.time.cfl / 2}})  # noqa: E731
     dense = scene_from_dict({**_as_dict(base), "domain": {**_as_dict(base)["domain"], "points_per_cell": 3}})
-    t0, t1, t2 = simulate([base, half(base), dense], progress=False)
-    s0, s1 = simulate([steep, half(steep)], progress=False)
+    t0, t1, t2 = simulate([base, half(base), dense], progress=False, backend=backend)
+    s0, s1 = simulate([steep, half(steep)], progress=False, backend=backend)
     out = []
     for name, ref, tr in (("dt/2", t0, t1), ("3x3 points", t0, t2), ("dt/2 phi45 c10", s0, s1)):
         r0 = ref.positions[-1, ref.soil, 0].max() - w
@@ -288,9 +291,9 @@ def _cells(name: str, quick: bool) -> tuple[float, ...]:
 
 
 def run_validation(out: Path, quick: bool = False, cases=None, report: Path | None = None,
-                   command: str = "runout validate", progress=print) -> list[CaseResult]:
-    """Run the cases (at the cell sizes of _cells), draw each, write results.json and the
-    Markdown report. Returns the results."""
+                   command: str = "runout validate", progress=print, backend: str = BACKEND) -> list[CaseResult]:
+    """Run the cases (at the cell sizes of _cells) on the MPM `backend` (runout.mpm.batch),
+    draw each, write results.json and the Markdown report. Returns the results."""
     from runout.validate_figures import draw_case
 
     out.mkdir(parents=True, exist_ok=True)
@@ -300,11 +303,12 @@ def run_validation(out: Path, quick: bool = False, cases=None, report: Path | No
         for cell in _cells(name, quick):
             frames = 300 if name in ("cuts", "griffiths_lane") else 120 if name == "incline" else 600
             start = time.perf_counter()
-            items = CASES[name](cell, frames)
+            items = CASES[name](cell, frames, backend=backend)
             wall = time.perf_counter() - start
             for res, traj, kind in items:
                 res.extra["cell_m"] = cell
                 res.extra["wall_s"] = round(wall, 1)
+                res.extra["backend"] = backend
                 res.figure = draw_case(res, traj, kind, out)
                 results.append(res)
                 progress(f"{res.case}: {res.quantity} = {res.measured:.3f} "

@@ -21,7 +21,6 @@ def invert(
     checkpoint: bool = typer.Option(True, help="Recompute each rollout step in the backward pass (much less memory)."),
     plot_iterations: str = typer.Option(None, help="Iterations to draw in deposit.png, e.g. '0,1,last' (default: first, second, middle, last)."),
     force: bool = typer.Option(False, "--force", help="Start afresh in --out, removing a previous history or another command's results there."),
-    compile: bool = typer.Option(False, "--compile", help="mpm-ad, mpm-fd: torch.compile the MPM substeps (on a CPU mpm-ad ~6x, mpm-fd ~3x faster per evaluation; the first evaluation compiles for seconds to minutes)."),
 ) -> None:
     """Fit the spec's free material parameters (phi in degrees, c in kPa) to the target runout
     with L-BFGS-B inside their bounds; writes history.csv, history.json, loss.png,
@@ -38,7 +37,6 @@ def invert(
             spec, out, model=model, device=device, starts=starts, engine=engine, fd_step=fd_step,
             checkpoint=checkpoint, plot_iterations=plot_iterations, log=typer.echo, progress=True,
             warn=lambda line: typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW), force=force,
-            compile=compile,
         )
     except RolloutDiverged as exc:
         raise RunFailed(f"{str(exc).rstrip('.')}; the history so far is in {out}.") from None

@@ -19,7 +19,6 @@ def mpm(
     frames: int = typer.Option(None, help="Output frames including frame 0 (default: the scene's [time] frames)."),
     animate: bool = typer.Option(True, help="Write animation.gif."),
     vtk: bool = typer.Option(False, "--vtk", help="Also write ParaView files: vtk/frame_*.vtu and vtk/trajectory.pvd."),
-    compile: bool = typer.Option(False, help="torch.compile the substep: faster on long runs, slow to start."),
     force: bool = FORCE,
 ) -> None:
     """Run the MPM on a scene: writes trajectory.npz + metadata.json (GNS layout, material
@@ -28,7 +27,7 @@ def mpm(
     from runout.mpm_run import run_mpm
 
     checks.device(device)
-    traj, writes = run_mpm(scene, out, frames, device, animate, vtk, compile, force)
+    traj, writes = run_mpm(scene, out, frames, device, animate, vtk, force)
     info = traj.info
     typer.echo(
         f"{traj.n_points} points, {traj.n_frames} frames, {info['substeps_per_frame']} substeps/frame, "

@@ -17,6 +17,7 @@ from runout.errors import InputError, RunFailed
 from runout.inverse.observation import Observation
 from runout.inverse.problem import Evaluation, timed_evaluation, weighted_mse
 from runout.inverse.spec import InverseSpec
+from runout.mpm.batch import BACKEND
 from runout.mpm.budget import GIB, check_budget, device_memory
 from runout.mpm.setup import material_table
 
@@ -26,13 +27,12 @@ STATE_BYTES = 13 * 8  # x, v, C, stress, volume per point in float64: kept at ea
 class MpmAutodiff:
     """Evaluator: physical values [P] -> Evaluation (loss and its exact gradient).
 
-    compile=True runs the MPM's substeps through torch.compile (runout.mpm.differentiable):
-    ~6x faster per evaluation on a CPU once compiled, but the first evaluation compiles four
-    graphs (2-3 minutes on a 2-core CPU; seconds in later processes, from torch's disk cache).
-    backend="warp" runs the MPM and its adjoint on the fused Warp kernels (runout.mpm.kernels_ad)."""
+    The MPM and its adjoint run on the fused Warp kernels (runout.mpm.kernels_ad). backend="torch"
+    (and with it compile=True) is the torch solver under autograd, the oracle that tests and
+    bench/mpm_ad.py compare the kernels with (runout.mpm.differentiable); no command selects it."""
 
     def __init__(self, spec: InverseSpec, observation: Observation, device: str = "cpu", compile: bool = False,
-                 backend: str = "torch"):
+                 backend: str = BACKEND):
         from runout.mpm.differentiable import DifferentiableMpm
 
         check_ad_budget(spec, observation, device)

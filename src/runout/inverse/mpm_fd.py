@@ -20,6 +20,7 @@ from runout.inverse.observation import Observation
 from runout.inverse.optimise import spans, to_physical
 from runout.inverse.problem import Evaluation, weighted_mse
 from runout.inverse.spec import InverseSpec
+from runout.mpm.batch import BACKEND
 
 
 MAX_STEP = 0.5  # the largest --fd-step, as a fraction of each parameter's bounds
@@ -31,10 +32,13 @@ def check_step(step: float) -> None:
 
 
 class MpmFiniteDifference:
-    """Evaluator: physical values [P] -> Evaluation (loss and finite-difference gradient)."""
+    """Evaluator: physical values [P] -> Evaluation (loss and finite-difference gradient).
+
+    backend="torch" (and with it compile=True) is the torch solver, the oracle that tests and
+    bench/mpm_ad.py compare the fused kernels with (runout.mpm.simulate); no command selects it."""
 
     def __init__(self, spec: InverseSpec, observation: Observation, step: float = 0.01,
-                 device: str = "cpu", progress: bool = False, compile: bool = False):
+                 device: str = "cpu", progress: bool = False, compile: bool = False, backend: str = BACKEND):
         check_step(step)
         self.spec = spec
         self.free = spec.free
@@ -42,7 +46,8 @@ class MpmFiniteDifference:
         self.step = step
         self.device = device
         self.progress = progress
-        self.compile = compile  # torch.compile the substep (runout.mpm.simulate): faster, slow first call
+        self.compile = compile  # with backend="torch", the oracle of tests and benchmarks (runout.mpm.simulate)
+        self.backend = backend
         self.target = torch.tensor(observation.positions, dtype=torch.float64)
         self.weights = torch.tensor(observation.weights(spec.loss), dtype=torch.float64)
 
@@ -67,7 +72,7 @@ class MpmFiniteDifference:
         with PeakMemory(self.device) as memory:
             start = time.perf_counter()
             runs = simulate(scenes, device=self.device, progress=self.progress, frames=self.frames[-1] + 1,
-                            compile=self.compile)
+                            compile=self.compile, backend=self.backend)
             elapsed = time.perf_counter() - start
         losses = np.array([self._loss(run.positions) for run in runs])
         gradient_u = (losses[2::2] - losses[1::2]) / spacing

@@ -49,7 +49,6 @@ def invert(
     progress: bool = False,
     warn: Log | None = None,
     force: bool = False,
-    compile: bool = False,
 ) -> InversionResult:
     """Back-calculate the spec's free parameters; write histories and figures to out_dir.
 
@@ -57,16 +56,12 @@ def invert(
     when its own cells differ), so the target must be a run of the scene at that spacing.
     A run killed part-way resumes when called again with the same arguments (force: start
     afresh). `log` receives one line per evaluation, `warn` each warning (e.g. a value
-    outside the model's training range); `progress` shows a bar over each forward run.
-    compile (mpm-ad, mpm-fd): torch.compile the MPM substeps, ~6x (mpm-ad) and ~3x (mpm-fd) faster per
-    evaluation on a CPU after a first evaluation that compiles (seconds to minutes, docs/benchmarks.md)."""
+    outside the model's training range); `progress` shows a bar over each forward run."""
     if engine not in ENGINES:
         raise InputError(f"--engine {engine!r} must be one of {', '.join(ENGINES)}.")
     if not 1 <= starts <= MAX_STARTS:
         raise InputError(f"--starts {starts} is outside the allowed range [1, {MAX_STARTS}].")
     check_step(fd_step)
-    if compile and engine == "gns":
-        raise InputError("--compile applies to the engines mpm-ad and mpm-fd, not to --engine gns.")
     spec = load_inverse_spec(spec_path)
     chosen = check_iterations(plot_iterations, spec.optimiser.max_iterations)
     folder = check_folder(out_dir, "invert", _writes(starts), mode="resume", force=force)
@@ -76,7 +71,7 @@ def invert(
         spec, filled = _at_model_spacing(spec, simulator, log)
     observation = load_observation(spec, filled, 1 if simulator is None else simulator.frame_stride)
     evaluate, model_name = _evaluator(spec, observation, engine, simulator, model, device, fd_step, checkpoint, progress,
-                                      warn, compile)
+                                      warn)
     claim(folder)
     info = RunInfo(digest=spec.digest, engine=engine, model=model_name, start=[])
     results = run_starts(
@@ -116,17 +111,17 @@ def _at_model_spacing(spec: InverseSpec, simulator, log: Log | None) -> tuple[In
     return replace(spec, scene=scene), filled
 
 
-def _evaluator(spec, observation, engine, simulator, model, device, fd_step, checkpoint, progress, warn, compile=False):
+def _evaluator(spec, observation, engine, simulator, model, device, fd_step, checkpoint, progress, warn):
     if engine == "mpm-fd":
         from runout.inverse.mpm_fd import MpmFiniteDifference
         from runout.mpm.budget import check_budget
 
         check_budget([spec.scene] * (2 * len(spec.free) + 1), observation.frames[-1] + 1, device, str(spec.source))
-        return MpmFiniteDifference(spec, observation, fd_step, device, progress, compile), ""
+        return MpmFiniteDifference(spec, observation, fd_step, device, progress), ""
     if engine == "mpm-ad":
         from runout.inverse.mpm_ad import MpmAutodiff
 
-        return MpmAutodiff(spec, observation, device, compile), ""
+        return MpmAutodiff(spec, observation, device), ""
     from runout.gns.rollout import scene_at_rest
     from runout.gns.training_range import bound_warnings, range_warnings
     from runout.inverse.forward import inverse_problem

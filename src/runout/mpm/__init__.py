@@ -15,7 +15,7 @@ from collections import defaultdict
 import torch
 
 from runout import checks
-from runout.mpm.batch import run_batch
+from runout.mpm.batch import BACKEND, run_batch
 from runout.mpm.setup import build_batch, substeps_per_frame
 from runout.scene import Scene
 from runout.trajectory import Trajectory
@@ -32,12 +32,13 @@ def simulate(
     frames: int | None = None,
     dtype: torch.dtype = torch.float64,
     compile: bool = False,
-    backend: str = "torch",
+    backend: str = BACKEND,
 ) -> list[Trajectory]:
     """Run every scene through the MPM; returns one Trajectory per scene, in order.
 
-    dtype float64 (default) or float32; compile=True uses torch.compile for long runs;
-    backend="warp" runs the substep as fused Warp kernels (float64; runout.mpm.kernels)."""
+    The substep runs as fused Warp kernels in float64 (runout.mpm.kernels). backend="torch"
+    is the tensor solver the tests compare them with (runout.mpm.batch.run_batch); dtype
+    float32 and compile=True are for it alone."""
     checks.device(str(device))
     device = torch.device(device)
     groups: dict[tuple, list[int]] = defaultdict(list)

@@ -76,16 +76,18 @@ def relaxation_schedule(batch: Batch) -> tuple[float, torch.Tensor, int]:
 
 
 BACKENDS = ("torch", "warp")  # the substep as torch tensor operations (solver) or as Warp kernels (kernels)
+BACKEND = "warp"  # the one every command runs; "torch" is the test oracle (docs/scene-format.md)
 
 
 def run_batch(batch: Batch, frames: int, progress: bool = True, compile: bool = False,
-              backend: str = "torch") -> list[Trajectory]:
+              backend: str = BACKEND) -> list[Trajectory]:
     """Advance every scene of the batch through `frames` output frames (frame 0 = start).
 
-    compile=True fuses the substep with torch.compile: about 2.5x faster per substep on CPU
-    but it costs a minute or more of compilation first, so it pays off only on long runs.
-    backend="warp" runs the same substep as fused Warp kernels (runout.mpm.kernels, float64
-    only); it is not the default until it passes every check of the torch solver."""
+    The substep runs as fused Warp kernels (runout.mpm.kernels, float64). backend="torch" runs
+    the tensor solver (runout.mpm.solver) instead, the oracle the tests compare the kernels
+    with: the same positions, 4-9x slower; only it takes a float32 batch or compile=True
+    (torch.compile of the substep, a minute or more of compilation first). No command
+    selects it."""
     if backend not in BACKENDS:
         raise ValueError(f"MPM backend {backend!r} is not one of {', '.join(BACKENDS)}")
     if backend == "warp" and compile:

@@ -5,7 +5,11 @@ once to CACHE/<key>/ (trajectory.npz, metadata.json and the scene.toml it came f
 reused by reruns and by every other model. Missing scenes run together in ONE batched
 `runout.mpm.simulate` call. The key covers the whole scene (domain, time, materials,
 regions, name) and `runout.mpm.SOLVER_VERSION`, so a changed solver never serves an old
-result; entries of other versions stay on disk until the cache folder is cleared.
+result; entries of other versions stay on disk until the cache folder is cleared. The version
+names the physics, not the code that runs it: the Warp kernels give the torch solver's
+trajectories to float64 rounding, the same float32 records in every check measured
+(docs/scene-format.md), so entries either wrote serve both; each entry's metadata names the
+backend that made it.
 """
 
 from __future__ import annotations

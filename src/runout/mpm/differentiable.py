@@ -11,25 +11,20 @@ and so are the K0 start and the materials, from the strengths given here. The su
 the relaxation length and the grid follow from stiffness, density and geometry, never from phi
 or c, so they stay fixed while an optimiser moves the strengths.
 
-Memory stays bounded (torch.utils.checkpoint, reentrant): the forward keeps only the state
-(x, v, C, stress, volume: 13 numbers per point) at each output frame and at each relaxation
-substep, and the backward pass recomputes one frame's substeps at a time. So the memory grows
-by about 100 bytes per point per frame instead of by every substep's temporaries.
+The relaxation and the frames run on the fused Warp kernels (runout.mpm.kernels, float64) with
+their own adjoints (runout.mpm.kernels_ad). Memory stays bounded: the forward keeps only the
+state (x, v, C, stress, volume: 13 numbers per point) at each output frame and every
+RELAX_SEGMENT relaxation substeps, and the backward pass recomputes one segment at a time, so
+the memory grows by about 100 bytes per point per frame instead of by every substep's
+temporaries. The K0 start, the materials and the return after the relaxation stay in torch.
+The small dam's evaluation at P = 3 took 0.31 s against 4.47 s on the torch solver (loaded
+2-core CPU, 2026-12-03), with nothing to compile beyond Warp's cached module.
 
-compile=True runs each frame's substeps (and each relaxation substep) through torch.compile:
-the checkpoint's forward runs a fused no-grad graph, and its recomputation AOTAutograd's fused
-forward and backward, so the thousands of small autograd operations per frame become a few
-C++ kernels. Same results to rounding (the kernels may reorder sums), about 6x faster per
-evaluation on a CPU (small dam, P = 3: 0.99 s against 6.28 s, docs/benchmarks.md), the same memory; the first evaluation
-compiles four graphs (no grad / grad, relaxation / frame): 2-3 minutes on a 2-core CPU, a few
-seconds in a later process from torch's on-disk compile cache.
-
-backend="warp" runs the relaxation and the frames on the fused Warp kernels (runout.mpm.kernels,
-float64) with their own adjoints (runout.mpm.kernels_ad), checkpointed the same way (the state at
-each frame and every RELAX_SEGMENT relaxation substeps); the K0 start, the materials and the
-return after the relaxation stay in torch. Same positions and gradients as the torch backend to
-rounding (tests/test_mpm_kernels_ad.py); the small dam's evaluation at P = 3 took 0.31 s against
-4.47 s eager (loaded 2-core CPU, 2026-12-03), and nothing to compile beyond Warp's cached module.
+backend="torch" is the oracle the tests compare the kernels with (same positions and gradients
+to rounding, tests/test_mpm_kernels_ad.py): the torch solver under autograd, checkpointed with
+torch.utils.checkpoint (reentrant) per frame and per relaxation substep; only it takes float32,
+checkpoint=False (autograd keeps every substep) or compile=True (torch.compile of each frame's
+substeps: four graphs, 2-3 minutes of compilation on a 2-core CPU). No command selects it.
 """
 
 from __future__ import annotations
@@ -40,7 +35,7 @@ from functools import partial
 import torch
 from torch.utils.checkpoint import checkpoint
 
-from runout.mpm.batch import BACKENDS, RELAX_DAMPING, relax_geostatic, relaxation_schedule
+from runout.mpm.batch import BACKEND, BACKENDS, RELAX_DAMPING, relax_geostatic, relaxation_schedule
 from runout.mpm.mohr_coulomb import MaterialArrays, return_map
 from runout.mpm.setup import Strengths, build_batch
 from runout.mpm.solver import Points, substep
@@ -57,7 +52,7 @@ class DifferentiableMpm:
     M follows scene.material_names; frames are output-frame indices (0 = start), increasing."""
 
     def __init__(self, scene: Scene, frames, device: str | torch.device = "cpu", dtype: torch.dtype = torch.float64,
-                 checkpoint: bool = True, compile: bool = False, backend: str = "torch"):
+                 checkpoint: bool = True, compile: bool = False, backend: str = BACKEND):
         if backend not in BACKENDS:
             raise ValueError(f"differentiable MPM backend {backend!r} is not one of {', '.join(BACKENDS)}")
         if backend == "warp" and (compile or not checkpoint or dtype != torch.float64):
