@@ -46,6 +46,10 @@ PRESETS: dict[str, list[str]] = {
        for n in ("0.1", "0.3", "0.6")},
     **{f"r-noise{n}-stride{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--frame-stride", k]
        for n in ("0.1", "0.3", "0.6") for k in ("2", "4")},
+    # from an exact-rest pilot's checkpoint: pushforward k (the model's own errors instead of more noise), activations kept
+    **{f"x-noise{n}-exact-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--exact-rest",
+                                   "--pushforward", k, "--no-checkpoint-layers"]
+       for n in ("0.03", "0.1", "0.3") for k in ("1", "2")},
     **{f"r-noise{n}-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--pushforward", k]
        for n in ("0.1", "0.3", "0.6") for k in ("1", "2")},
     **{f"r-noise{n}-mw{w}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--moving-weight", w]
@@ -63,6 +67,10 @@ PRESETS: dict[str, list[str]] = {
     **{f"x-noise{n}-exact-stride{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--exact-rest",
                                        "--frame-stride", k, "--no-checkpoint-layers"]
        for n in ("0.1", "0.3", "0.6") for k in ("2", "4")},
+    # from an exact-rest pilot's checkpoint: pushforward k (the model's own errors instead of more noise), activations kept
+    **{f"x-noise{n}-exact-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--exact-rest",
+                                   "--pushforward", k, "--no-checkpoint-layers"]
+       for n in ("0.03", "0.1", "0.3") for k in ("1", "2")},
 }
 
 
