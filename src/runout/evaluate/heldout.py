@@ -76,20 +76,10 @@ def evaluate_heldout(simulator, data: str | Path, split: str = "valid", count: i
             "standing_still": score([standing_still(t) for t in truths], truths, spacing)}
 
 
-def rollout_all(simulator, truths, progress: bool = False, batch: int = 1) -> list:
-    """Every truth rolled out from rest over all its frames, `batch` scenes of one length per
-    network call (runout.gns.rollout.rollout_trajectories). One at a time by default: on the
-    2-core CPU, 8 validation scenes of 700-1,900 points batched took 331 s for 60 frames
-    against 254 s one by one (1 thread, loaded machine, 2026-12-03); batches pay on a GPU."""
-    from runout.gns.rollout import rollout_trajectories
+def rollout_all(simulator, truths, progress: bool = False) -> list:
+    """Every truth rolled out from rest over all its frames, one scene at a time: batching
+    scenes (runout.gns.rollout.rollout_trajectories) was slower on the 2-core CPU (8
+    validation scenes, 60 frames: 331 s against 254 s, 1 thread, loaded, 2026-12-03)."""
+    from runout.gns.rollout import rollout_trajectory
 
-    predicted = {}
-    by_length: dict[int, list[int]] = {}
-    for k, t in enumerate(truths):
-        by_length.setdefault(t.n_frames, []).append(k)
-    for frames, ks in by_length.items():
-        for i in range(0, len(ks), batch):
-            group = ks[i : i + batch]
-            runs = rollout_trajectories(simulator, [truths[k] for k in group], frames, stop_speed=None, progress=progress)
-            predicted.update(zip(group, runs))
-    return [predicted[k] for k in range(len(truths))]
+    return [rollout_trajectory(simulator, t, t.n_frames, stop_speed=None, progress=progress) for t in truths]
