@@ -11,8 +11,9 @@ Frames can be cut for a quick figure: throughput is per substep, and the printed
     python bench/mpm.py --batches 1 --frames 500 --backends torch --compile
 
 The Warp kernels (runout.mpm.kernels, what every command runs) are float64 only; their compile (or
-cache load) is done before the timed run, as torch.compile's is. Warp runs a CPU launch on one
-thread whatever --threads says. --float32 and --compile apply to the torch solver (the tests' oracle).
+cache load) is done before the timed run, as torch.compile's is. Warp runs each CPU launch on one
+thread; a batch's scenes run in up to --threads groups side by side (kernels.WarpSubstep), so a
+batch of one scene uses one core whatever --threads says. --float32 and --compile apply to the torch solver (the tests' oracle).
 
 Reference: the paper's MPM data took ~50 minutes per run on a 56-core node.
 """

@@ -25,6 +25,8 @@ import sys
 import time
 from pathlib import Path
 
+from runout.outputs import write_atomic
+
 # name: extra `runout train` options
 W64 = ["--latent", "64", "--hidden", "64", "--message-passing-steps", "5", "--bf16"]
 PRESETS: dict[str, list[str]] = {
@@ -67,10 +69,6 @@ PRESETS: dict[str, list[str]] = {
     **{f"x-noise{n}-exact-stride{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--exact-rest",
                                        "--frame-stride", k, "--no-checkpoint-layers"]
        for n in ("0.1", "0.3", "0.6") for k in ("2", "4")},
-    # from an exact-rest pilot's checkpoint: pushforward k (the model's own errors instead of more noise), activations kept
-    **{f"x-noise{n}-exact-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--exact-rest",
-                                   "--pushforward", k, "--no-checkpoint-layers"]
-       for n in ("0.03", "0.1", "0.3") for k in ("1", "2")},
 }
 
 
@@ -163,8 +161,12 @@ def main() -> None:
     if not args.evaluate_only:
         run_pilots(args.pilots, args.data, args.out, args.minutes, args.parallel, args.threads, args.init)
     rows = evaluate(args.pilots, args.data, args.out, args.valid, args.eval_threads)
-    (args.out / "pilots.json").write_text(json.dumps(rows, indent=2))
     print(table(rows))
+    # merged by pilot name, so pilots evaluated in separate runs (or processes) keep each other's rows
+    path = args.out / "pilots.json"
+    kept = json.loads(path.read_text()) if path.exists() else []
+    fresh = {r["pilot"] for r in rows}
+    write_atomic(path, json.dumps([r for r in kept if r["pilot"] not in fresh] + rows, indent=2))
 
 
 if __name__ == "__main__":

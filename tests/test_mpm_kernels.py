@@ -184,3 +184,33 @@ def test_users_run_the_warp_kernels_and_no_option_selects_the_torch_solver(tmp_p
     assert exit_info.value.code == 2
     assert "--compile" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()
+
+
+def test_scene_groups_split_whole_scenes_with_about_equal_points():
+    scene = torch.repeat_interleave(torch.arange(4), torch.tensor([100, 10, 10, 100]))
+    offsets = torch.tensor([0, 50, 70, 90])
+    assert kernels.scene_groups(scene, offsets, 140, 2) == [(0, 110, 0, 70), (110, 220, 70, 140)]
+    assert kernels.scene_groups(scene, offsets, 140, 1) == [(0, 220, 0, 140)]
+    assert kernels.scene_groups(scene, offsets, 140, 8) == [(0, 100, 0, 50), (100, 110, 50, 70),
+                                                            (110, 120, 70, 90), (120, 220, 90, 140)]
+
+
+def test_scene_groups_on_threads_give_the_one_thread_trajectories_bit_for_bit():
+    """The CPU runs a batch's scenes in groups side by side (one Warp launch runs on one thread);
+    each scene's arithmetic is the same, so every stored position is identical."""
+    scenes = [scene_from_dict({**scene_to_dict(column_scene(w, 24.0, phi, 0.0, 4.0, 12)), "name": f"c{w:g}"})
+              for w, phi in ((12.0, 20.0), (16.0, 30.0), (8.0, 25.0))]
+    runs = {}
+    before = torch.get_num_threads()
+    try:
+        for threads in (1, 2, 3):
+            torch.set_num_threads(threads)
+            batch = build_batch(scenes, torch.device("cpu"), torch.float64)
+            assert len(kernels.WarpSubstep(batch.grid, batch.pts).groups) == threads
+            runs[threads] = run_batch(batch, 12, progress=False)
+    finally:
+        torch.set_num_threads(before)
+    assert np.abs(runs[1][0].positions[-1] - runs[1][0].positions[0]).max() > 0.5  # m: the columns collapse
+    for threads in (2, 3):
+        for a, b in zip(runs[1], runs[threads]):
+            assert np.array_equal(a.positions, b.positions), f"{threads} threads changed {a.name}"

@@ -31,6 +31,8 @@ the same cache on first use. Units: m, s, kg per metre of thickness, Pa; tension
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
+
 import numpy as np
 import torch
 import warp as wp
@@ -441,9 +443,15 @@ def material_constants(mat: MaterialArrays) -> MaterialConstants:
 class WarpSubstep:
     """solver.substep through the kernels above, in place on a batch's Points (torch tensors on
     CPU or CUDA, float64, contiguous). Made once per batch: the node rules come from the grid's
-    Constraint lists and stuck nodes, the per-point constants from pts.mat."""
+    Constraint lists and stuck nodes, the per-point constants from pts.mat.
 
-    def __init__(self, grid: Grid, pts: Points):
+    On the CPU, Warp runs a launch on one thread; `advance` and `relax` run the batch's scenes
+    in up to `threads` groups at once (default torch.get_num_threads()), each group on its own
+    thread through all the substeps asked for (scenes share no points and no nodes, and Warp
+    lets go of the GIL while a kernel runs). Each scene's arithmetic is unchanged, in the same
+    order, so results are bit for bit those of one thread."""
+
+    def __init__(self, grid: Grid, pts: Points, threads: int | None = None):
         if pts.x.dtype != torch.float64:
             raise ValueError(f"the Warp MPM kernels run in float64; got points in {pts.x.dtype} "
                              "(build the batch with dtype=torch.float64)")
@@ -460,6 +468,10 @@ class WarpSubstep:
         self._bound: tuple | None = None
         self.arrays = PointArrays()
         self.new = NewState()
+        self.groups = scene_groups(pts.scene, grid.node_offset, grid.size, threads if threads is not None
+                                   else (torch.get_num_threads() if self.device.is_cpu else 1))
+        self._views: list[tuple] = []
+        self._pool: ThreadPoolExecutor | None = None
 
     def __call__(self, pts: Points, grid: Grid, dt: float, flip: float | str = FLIP_WAVE, damping: float = 0.0) -> None:
         """One substep of dt seconds, in place (solver.substep's signature)."""
@@ -470,21 +482,53 @@ class WarpSubstep:
         """`total` substeps with the points held in place, point p's stress updated only in its
         first steps[p] of them (batch.relax_geostatic's loop)."""
         self._last_step.copy_(steps.to(torch.int32))
-        for k in range(total):
-            self._launch(pts, grid.dx, dt, flip, damping, step=k, hold=1)
+        self._in_groups(pts, grid.dx, dt, flip, damping, total, hold=1)
         self._last_step.fill_(FREE)
+
+    def advance(self, pts: Points, grid: Grid, dt: float, flip: float | str, damping: float, substeps: int) -> None:
+        """`substeps` substeps of dt seconds in place (a frame of batch.run_batch), the scene
+        groups side by side."""
+        self._in_groups(pts, grid.dx, dt, flip, damping, substeps, hold=0)
+
+    def _in_groups(self, pts: Points, dx: float, dt: float, flip, damping: float, substeps: int, hold: int) -> None:
+        if self.n_points == 0:
+            return
+        self._bind(pts)
+        if len(self.groups) == 1:
+            for k in range(substeps):
+                self._launch(pts, dx, dt, flip, damping, step=k, hold=hold)
+            return
+        views = self._group_views()
+
+        def run(view) -> None:
+            for k in range(substeps):
+                self._launch_arrays(*view, dx, dt, flip, damping, k, hold)
+
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=len(views) - 1, thread_name_prefix="runout-mpm")
+        pending = [self._pool.submit(run, view) for view in views[1:]]
+        run(views[0])
+        for job in pending:
+            job.result()
 
     def _launch(self, pts: Points, dx: float, dt: float, flip, damping: float, step: int, hold: int) -> None:
         if self.n_points == 0:
             return
-        arrays, nodes, n, p = self._bind(pts), self.nodes, self.n_nodes, self.n_points
+        arrays = self._bind(pts)
+        self._launch_arrays(arrays, self.new, self.mat, self.nodes, self.nodes, dx, dt, flip, damping, step, hold)
+
+    def _launch_arrays(self, arrays: PointArrays, new: NewState, mat: MaterialConstants, nodes: NodeArrays,
+                       own_nodes: NodeArrays, dx: float, dt: float, flip, damping: float, step: int, hold: int) -> None:
+        """One substep of the points in `arrays` on the nodes `own_nodes` (the nodes of their
+        scenes, a view of `nodes`, which the point kernels index globally)."""
+        n, p = own_nodes.mass.shape[0], arrays.x.shape[0]
         wave = int(flip == FLIP_WAVE)
         share = 0.0 if wave else float(flip)
-        self._run(clear_grid, n, nodes)
+        self._run(clear_grid, n, own_nodes)
         self._run(p2g, p, arrays, nodes, dx, dt * (4.0 / dx**2))
-        self._run(grid_update, n, nodes, GRAVITY * dt, float(damping))
-        self._run(g2p, p, arrays, nodes, dx, dt, share, wave, self.new)
-        self._run(update_points, p, arrays, self.mat, nodes, dx, dt, step, hold, self.new)
+        self._run(grid_update, n, own_nodes, GRAVITY * dt, float(damping))
+        self._run(g2p, p, arrays, nodes, dx, dt, share, wave, new)
+        self._run(update_points, p, arrays, mat, nodes, dx, dt, step, hold, new)
 
     def _run(self, kernel, dim: int, *inputs) -> None:
         wp.launch(kernel, dim=dim, inputs=list(inputs), device=self.device, stream=self.stream)
@@ -516,7 +560,52 @@ class WarpSubstep:
         new.C_grid = new.C = a.C
         new.x, new.v, new.stress, new.volume = a.x, a.v, a.stress, a.volume
         self._bound = key
+        self._views = []
         return a
+
+    def _group_views(self) -> list[tuple]:
+        """Per scene group: its points' arrays, new state and constants, all nodes, and its own
+        nodes, as Warp views (no copies) of the bound arrays."""
+        if not self._views:
+            for p0, p1, n0, n1 in self.groups:
+                self._views.append((sliced(self.arrays, PointArrays(), p0, p1), sliced(self.new, NewState(), p0, p1),
+                                    sliced(self.mat, MaterialConstants(), p0, p1), self.nodes,
+                                    sliced(self.nodes, NodeArrays(), n0, n1)))
+        return self._views
+
+    def __del__(self):
+        if getattr(self, "_pool", None) is not None:
+            self._pool.shutdown(wait=False)
+
+
+def sliced(struct, out, start: int, stop: int):
+    """`out` (a new struct of struct's type) with every array field viewing rows start:stop."""
+    for name in struct._cls.vars:
+        setattr(out, name, getattr(struct, name)[start:stop])
+    return out
+
+
+def scene_groups(scene: torch.Tensor, node_offset: torch.Tensor, n_nodes: int, threads: int) -> list[tuple[int, int, int, int]]:
+    """Split a batch (points ordered by scene, each scene's nodes a contiguous run from
+    node_offset) into at most `threads` groups of whole scenes with about equal points:
+    (first point, end point, first node, end node) each."""
+    counts = torch.bincount(scene.cpu(), minlength=len(node_offset)).tolist()
+    offsets = node_offset.cpu().tolist() + [n_nodes]
+    groups = max(1, min(threads, sum(c > 0 for c in counts)))
+    total = sum(counts)
+    out, p0, s0, done = [], 0, 0, 0
+    for g in range(groups):
+        if g == groups - 1:
+            s1 = len(counts)
+        else:  # whole scenes until this group holds its share of the points
+            s1, target = s0, total * (g + 1) / groups
+            while s1 < len(counts) and (done + counts[s1] <= target or s1 == s0):
+                done += counts[s1]
+                s1 += 1
+        p1 = p0 + sum(counts[s0:s1]) if g < groups - 1 else total
+        out.append((p0, p1, offsets[s0], offsets[s1]))
+        p0, s0 = p1, s1
+    return [g for g in out if g[1] > g[0]]
 
 
 def node_arrays(grid: Grid, device) -> NodeArrays:
