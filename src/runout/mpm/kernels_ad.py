@@ -20,6 +20,7 @@ autograd carries their gradients on to phi and c through the K0 start and Materi
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import nullcontext
 from dataclasses import dataclass
 
@@ -29,7 +30,7 @@ import warp as wp
 from runout.defaults import FLIP_WAVE
 from runout.mpm.geostatic import GRAVITY
 from runout.mpm.kernels import (
-    FREE, MaterialConstants, NewState, PointArrays, Real, g2p, grid_update, node_arrays, p2g,
+    FREE, MaterialConstants, NewState, NodeArrays, PointArrays, Real, g2p, grid_update, node_arrays, p2g,
     update_points, with_transfers,
 )
 from runout.mpm.mohr_coulomb import MaterialArrays
@@ -76,9 +77,14 @@ class Schedule:
 
 class WarpRun:
     """The Warp arrays of one batch's differentiable run: per-point constants, and the state,
-    transfer and move arrays of up to `longest` substeps (one segment), each with its gradient."""
+    transfer and move arrays of up to `longest` substeps (one segment), each with its gradient.
 
-    def __init__(self, batch: Batch, longest: int):
+    On a CPU with more than one torch thread (`threads`, default torch.get_num_threads()) it
+    holds two such sets, so that the backward pass recomputes the next segment's forward on
+    one thread while the adjoints of this segment run on the other (Warp runs a launch on one
+    thread and lets go of the GIL). The arithmetic, and its order, is that of one set."""
+
+    def __init__(self, batch: Batch, longest: int, threads: int | None = None):
         pts = batch.pts
         if pts.x.dtype != torch.float64:
             raise ValueError(f"the Warp MPM kernels run in float64; got points in {pts.x.dtype}")
@@ -86,20 +92,17 @@ class WarpRun:
         self.device = wp.device_from_torch(pts.x.device)
         self.stream = wp.stream_from_torch(pts.x.device) if pts.x.is_cuda else None  # torch's, so no race with it
         self.dx, self.n_points, self.n_nodes, self.longest = batch.grid.dx, len(pts.x), batch.grid.size, longest
-        rules = node_arrays(batch.grid, self.device)
-        self.nodes = [with_transfers(rules, requires_grad=True) for _ in range(longest)]
-        self.states = [{name: self._zeros(t) for name, t in _TYPES.items()} for _ in range(longest + 1)]
-        self.moves = [{"x_moved": self._zeros(wp.vec2d), "C_grid": self._zeros(wp.mat22d)} for _ in range(longest)]
         self.last_step = wp.full(self.n_points, FREE, dtype=wp.int32, device=self.device)
         self.mat = self._materials(pts.mat)
+        rules = node_arrays(batch.grid, self.device)
         constants = {name: self._copy(getattr(pts, name), dtype) for name, dtype in (
             ("rest_volume", Real), ("mass", Real), ("upper", wp.vec2d), ("wave_rate", Real),
             ("node_base", wp.int32), ("ny", wp.int32))}
-        self.inputs = [self._point_arrays(self.states[k], constants) for k in range(longest + 1)]
-        self.outputs = [self._new_state(self.states[k + 1], self.moves[k]) for k in range(longest)]
-        self._recorded: tuple | None = None  # the schedule settings the launches below were packed for
-        self._forward: list[list[wp.Launch]] = []  # [k] substep k's four launches
-        self._backward: list[list[wp.Launch]] = []  # [k] their adjoints, in reverse order
+        threads = threads if threads is not None else torch.get_num_threads()
+        sets = 2 if self.device.is_cpu and threads > 1 else 1
+        self.sets = [_ArraySet(self, rules, constants) for _ in range(sets)]
+        self._recorded: tuple | None = None  # the schedule settings the sets' launches were packed for
+        self._pool: ThreadPoolExecutor | None = None
 
     def on_torch_stream(self):
         """Context in which the run's launches and copies follow torch's CUDA stream."""
@@ -115,39 +118,51 @@ class WarpRun:
             self.last_step.assign(wp.from_torch(schedule.last_stress_step.to(torch.int32).contiguous()))
         settings = (schedule.dt, schedule.flip, schedule.damping, schedule.hold)
         if settings != self._recorded:
-            self._forward = [self._record(schedule, k, adjoint=False) for k in range(self.longest)]
-            self._backward = [self._record(schedule, k, adjoint=True)[::-1] for k in range(self.longest)]
+            for arrays in self.sets:
+                arrays.record(schedule)
             self._recorded = settings
 
-    def segment(self, schedule: Schedule, first: int, n: int, state) -> None:
-        """n substeps from `state` (torch tensors, STATE order) into self.states[1..n]."""
-        for name, t in zip(STATE, state):
-            self.states[0][name].assign(wp.from_torch(t.detach().contiguous(), dtype=_TYPES[name]))
-        for nodes in self.nodes[:n]:
-            for name in _SCATTERED:
-                getattr(nodes, name).zero_()
-        for k in range(n):
-            self._replay(self._forward[k], first + k)
+    def segment(self, schedule: Schedule, first: int, n: int, state, which: int = 0) -> None:
+        """n substeps from `state` (torch tensors, STATE order) into set `which`'s states[1..n]."""
+        self.sets[which].segment(first, n, state)
 
-    def state(self, k: int) -> tuple[torch.Tensor, ...]:
+    def state(self, k: int, which: int = 0) -> tuple[torch.Tensor, ...]:
         """The state after k substeps of the last segment, as torch tensors (copies)."""
-        return tuple(wp.to_torch(self.states[k][name]).clone() for name in STATE)
+        return tuple(wp.to_torch(self.sets[which].states[k][name]).clone() for name in STATE)
 
-    def adjoint(self, schedule: Schedule, first: int, n: int, start, adj_end) -> tuple[torch.Tensor, ...]:
-        """The segment's vector-Jacobian product: the adjoint of the start state from that of the
-        end state (STATE order); the strengths' adjoints accumulate in self.mat's gradients."""
-        for arrays in self.states[: n + 1] + self.moves[:n]:
-            for a in arrays.values():
-                a.grad.zero_()
-        for nodes in self.nodes[:n]:
-            for name in _TRANSFERS:
-                getattr(nodes, name).grad.zero_()
-        self.segment(schedule, first, n, start)
-        for name, g in zip(STATE, adj_end):
-            self.states[n][name].grad.assign(wp.from_torch(g.contiguous(), dtype=_TYPES[name]))
-        for k in reversed(range(n)):
-            self._replay(self._backward[k], first + k)
-        return tuple(wp.to_torch(self.states[0][name].grad).clone() for name in STATE)
+    def adjoints(self, schedule: Schedule, starts: list, adj, grad_ends) -> tuple[torch.Tensor, ...]:
+        """The whole schedule's vector-Jacobian product, segment by segment from the last: the
+        adjoint of the first segment's start state from `adj` (that of the end state) and
+        grad_ends [S] (those of the positions at each segment's end). With two array sets the
+        next segment's forward is recomputed on another thread meanwhile."""
+        order = list(reversed(range(len(schedule.segments))))
+
+        def recompute(j: int, which: int) -> None:
+            first, n = schedule.segments[j]
+            self.sets[which].recompute(first, n, starts[j])
+
+        if len(self.sets) == 1:
+            for j in order:
+                recompute(j, 0)
+                adj = self.sets[0].reverse(*schedule.segments[j], (adj[0] + grad_ends[j], *adj[1:]))
+            return adj
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="runout-mpm-ad")
+        recompute(order[0], 0)
+        pending = None
+        try:
+            for i, j in enumerate(order):
+                if pending is not None:
+                    pending.result()
+                    pending = None
+                which = i % 2
+                if i + 1 < len(order):  # the other set is free: its reverse pass (i - 1) has ended
+                    pending = self._pool.submit(recompute, order[i + 1], 1 - which)
+                adj = self.sets[which].reverse(*schedule.segments[j], (adj[0] + grad_ends[j], *adj[1:]))
+        finally:
+            if pending is not None:
+                pending.result()
+        return adj
 
     def zero_strength_grads(self) -> None:
         for name in STRENGTHS:
@@ -155,33 +170,6 @@ class WarpRun:
 
     def strength_grads(self) -> tuple[torch.Tensor, ...]:
         return tuple(wp.to_torch(getattr(self.mat, name).grad).clone() for name in STRENGTHS)
-
-    def _replay(self, launches: list[wp.Launch], step: int) -> None:
-        """Run packed launches of one substep, update_points told it is substep `step`."""
-        for launch in launches:
-            if launch.kernel is update_points:
-                launch.set_param_at_index(_STEP, step)
-            launch.launch()
-
-    def _record(self, schedule: Schedule, k: int, adjoint: bool) -> list[wp.Launch]:
-        """Substep k's four launches (or their adjoints), packed once for replaying."""
-        return [wp.launch(kernel, dim=dim, inputs=inputs, adj_inputs=[_empty(a) for a in inputs] if adjoint else [],
-                          adjoint=adjoint, device=self.device, record_cmd=True)
-                for kernel, dim, inputs in self._launches(schedule, k)]
-
-    def _launches(self, schedule: Schedule, k: int) -> list[tuple]:
-        """The four kernels of a substep of the schedule from self.states[k] into self.states[k + 1],
-        as (kernel, threads, inputs), in order; update_points' step is set when replayed."""
-        pts, nodes, out, dx, dt = self.inputs[k], self.nodes[k], self.outputs[k], self.dx, schedule.dt
-        wave = int(schedule.flip == FLIP_WAVE)
-        share = 0.0 if wave else float(schedule.flip)
-        p, g = self.n_points, self.n_nodes
-        return [
-            (p2g, p, [pts, nodes, dx, dt * (4.0 / dx**2)]),
-            (grid_update, g, [nodes, GRAVITY * dt, float(schedule.damping)]),
-            (g2p, p, [pts, nodes, dx, dt, share, wave, out]),
-            (update_points, p, [pts, self.mat, nodes, dx, dt, 0, int(schedule.hold), out]),
-        ]
 
     def _zeros(self, dtype) -> wp.array:
         return wp.zeros(self.n_points, dtype=dtype, device=self.device, requires_grad=True)
@@ -201,11 +189,91 @@ class WarpRun:
             setattr(out, name, self._zeros(Real))
         return out
 
+    def __del__(self):
+        if getattr(self, "_pool", None) is not None:
+            self._pool.shutdown(wait=False)
+
+
+class _ArraySet:
+    """One segment's arrays of a WarpRun (states, node transfers, moves, each with its gradient)
+    and the substeps' launches on them, forward and adjoint, packed once per schedule."""
+
+    def __init__(self, run: WarpRun, rules: NodeArrays, constants: dict):
+        self.run = run
+        longest = run.longest
+        self.nodes = [with_transfers(rules, requires_grad=True) for _ in range(longest)]
+        self.states = [{name: run._zeros(t) for name, t in _TYPES.items()} for _ in range(longest + 1)]
+        self.moves = [{"x_moved": run._zeros(wp.vec2d), "C_grid": run._zeros(wp.mat22d)} for _ in range(longest)]
+        self.inputs = [self._point_arrays(self.states[k], constants) for k in range(longest + 1)]
+        self.outputs = [self._new_state(self.states[k + 1], self.moves[k]) for k in range(longest)]
+        self._forward: list[list[wp.Launch]] = []  # [k] substep k's four launches
+        self._backward: list[list[wp.Launch]] = []  # [k] their adjoints, in reverse order
+
+    def record(self, schedule: Schedule) -> None:
+        self._forward = [self._record(schedule, k, adjoint=False) for k in range(self.run.longest)]
+        self._backward = [self._record(schedule, k, adjoint=True)[::-1] for k in range(self.run.longest)]
+
+    def segment(self, first: int, n: int, state) -> None:
+        """n substeps from `state` (torch tensors, STATE order) into self.states[1..n]."""
+        for name, t in zip(STATE, state):
+            self.states[0][name].assign(wp.from_torch(t.detach().contiguous(), dtype=_TYPES[name]))
+        for nodes in self.nodes[:n]:
+            for name in _SCATTERED:
+                getattr(nodes, name).zero_()
+        for k in range(n):
+            self._replay(self._forward[k], first + k)
+
+    def recompute(self, first: int, n: int, start) -> None:
+        """The segment's forward again from its kept start, gradients cleared, for `reverse`."""
+        for arrays in self.states[: n + 1] + self.moves[:n]:
+            for a in arrays.values():
+                a.grad.zero_()
+        for nodes in self.nodes[:n]:
+            for name in _TRANSFERS:
+                getattr(nodes, name).grad.zero_()
+        self.segment(first, n, start)
+
+    def reverse(self, first: int, n: int, adj_end) -> tuple[torch.Tensor, ...]:
+        """The adjoints of a recomputed segment: the start state's from the end state's."""
+        for name, g in zip(STATE, adj_end):
+            self.states[n][name].grad.assign(wp.from_torch(g.contiguous(), dtype=_TYPES[name]))
+        for k in reversed(range(n)):
+            self._replay(self._backward[k], first + k)
+        return tuple(wp.to_torch(self.states[0][name].grad).clone() for name in STATE)
+
+    def _replay(self, launches: list[wp.Launch], step: int) -> None:
+        """Run packed launches of one substep, update_points told it is substep `step`."""
+        for launch in launches:
+            if launch.kernel is update_points:
+                launch.set_param_at_index(_STEP, step)
+            launch.launch()
+
+    def _record(self, schedule: Schedule, k: int, adjoint: bool) -> list[wp.Launch]:
+        """Substep k's four launches (or their adjoints), packed once for replaying."""
+        return [wp.launch(kernel, dim=dim, inputs=inputs, adj_inputs=[_empty(a) for a in inputs] if adjoint else [],
+                          adjoint=adjoint, device=self.run.device, record_cmd=True)
+                for kernel, dim, inputs in self._launches(schedule, k)]
+
+    def _launches(self, schedule: Schedule, k: int) -> list[tuple]:
+        """The four kernels of a substep of the schedule from self.states[k] into self.states[k + 1],
+        as (kernel, threads, inputs), in order; update_points' step is set when replayed."""
+        run = self.run
+        pts, nodes, out, dx, dt = self.inputs[k], self.nodes[k], self.outputs[k], run.dx, schedule.dt
+        wave = int(schedule.flip == FLIP_WAVE)
+        share = 0.0 if wave else float(schedule.flip)
+        p, g = run.n_points, run.n_nodes
+        return [
+            (p2g, p, [pts, nodes, dx, dt * (4.0 / dx**2)]),
+            (grid_update, g, [nodes, GRAVITY * dt, float(schedule.damping)]),
+            (g2p, p, [pts, nodes, dx, dt, share, wave, out]),
+            (update_points, p, [pts, run.mat, nodes, dx, dt, 0, int(schedule.hold), out]),
+        ]
+
     def _point_arrays(self, state: dict, constants: dict) -> PointArrays:
         a = PointArrays()
         for name, array in {**state, **constants}.items():
             setattr(a, name, array)
-        a.last_stress_step = self.last_step
+        a.last_stress_step = self.run.last_step
         return a
 
     @staticmethod
@@ -251,11 +319,8 @@ class _Substeps(torch.autograd.Function):
         with run.on_torch_stream():
             run.prepare(schedule, strengths)  # another call may have used the run since
             run.zero_strength_grads()
-            for j in reversed(range(len(schedule.segments))):
-                first, n = schedule.segments[j]
-                adj = (adj[0] + grad_ends[j], *adj[1:])
-                start = kept[j * len(STATE): (j + 1) * len(STATE)]
-                adj = run.adjoint(schedule, first, n, start, adj)
+            starts = [kept[j * len(STATE): (j + 1) * len(STATE)] for j in range(len(schedule.segments))]
+            adj = run.adjoints(schedule, starts, adj, grad_ends)
             grads = (*adj, *run.strength_grads())
         return (None, None, *(g if need else None for g, need in zip(grads, ctx.needs_input_grad[2:])))
 
