@@ -76,11 +76,10 @@ def test_four_layer_slope_matches_the_torch_solver():
     assert_same_trajectories([scene_from_dict(data)], 60, min_move_cells=0.5)
 
 
-def test_batched_scenes_on_fixed_ground_with_fixed_flip_and_damping_match():
-    """One flat batch of two scenes: a column on deep fixed ground (Coulomb contact, stuck
-    nodes, elastic block) with a fixed FLIP share and local damping, beside a column on the
-    rigid base; each relaxes for its own length."""
-    ground = scene_from_dict({
+def on_fixed_ground():
+    """A column on deep fixed ground (Coulomb contact, stuck nodes) beside an elastic block
+    thrown sideways, with a fixed FLIP share and local damping."""
+    return scene_from_dict({
         "name": "on_ground",
         "domain": {"width": 80.0, "height": 48.0, "base_friction": 0.3},
         "time": {"frames": 20, "flip": 0.5, "damping": 0.05},
@@ -92,6 +91,12 @@ def test_batched_scenes_on_fixed_ground_with_fixed_flip_and_damping_match():
             {"material": "rock", "polygon": [[40, 16], [48, 16], [48, 24], [40, 24]], "velocity": [3.0, 0.0]},
         ],
     })
+
+
+def test_batched_scenes_on_fixed_ground_with_fixed_flip_and_damping_match():
+    """One flat batch of two scenes: the column on fixed ground beside a column on the rigid
+    base; each relaxes for its own length."""
+    ground = on_fixed_ground()
     column = scene_from_dict({**scene_to_dict(column_scene(12.0, 24.0, 30.0, 0.0, 4.0, 20)), "name": "column",
                               "time": {"frames": 20, "flip": 0.5, "damping": 0.05}})
     batch = build_batch([ground], torch.device("cpu"), torch.float64)
@@ -214,3 +219,24 @@ def test_scene_groups_on_threads_give_the_one_thread_trajectories_bit_for_bit():
     for threads in (2, 3):
         for a, b in zip(runs[1], runs[threads]):
             assert np.array_equal(a.positions, b.positions), f"{threads} threads changed {a.name}"
+
+
+@pytest.mark.parametrize("make", [on_fixed_ground, lambda: column_scene(24.0, 24.0, 25.0, 5.0, 2.0, 16)],
+                         ids=["fixed-ground", "column"])
+def test_one_scene_on_two_threads_gives_the_one_thread_trajectory_bit_for_bit(make, monkeypatch):
+    """A lone scene on two threads: each owns a run of nodes and half the points, and sums every
+    point's transfers into its own nodes in point order, so every position is the one-thread one."""
+    monkeypatch.setattr(kernels, "SPLIT_POINTS", 10)
+    scene = make()
+    runs = {}
+    before = torch.get_num_threads()
+    try:
+        for threads in (1, 2):
+            torch.set_num_threads(threads)
+            batch = build_batch([scene], torch.device("cpu"), torch.float64)
+            assert kernels.WarpSubstep(batch.grid, batch.pts).split == (threads == 2)
+            runs[threads] = run_batch(batch, 16, progress=False)[0].positions
+    finally:
+        torch.set_num_threads(before)
+    assert np.abs(runs[1][-1] - runs[1][0]).max() > 0.5  # m: it moves
+    assert np.array_equal(runs[1], runs[2])

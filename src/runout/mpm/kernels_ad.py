@@ -263,9 +263,9 @@ class _ArraySet:
         share = 0.0 if wave else float(schedule.flip)
         p, g = run.n_points, run.n_nodes
         return [
-            (p2g, p, [pts, nodes, dx, dt * (4.0 / dx**2)]),
+            (p2g, p, [pts, nodes, dx, dt * (4.0 / dx**2), 0, g]),
             (grid_update, g, [nodes, GRAVITY * dt, float(schedule.damping)]),
-            (g2p, p, [pts, nodes, dx, dt, share, wave, out]),
+            (g2p, p, [pts, nodes, dx, dt, share, wave, out, 0, g]),
             (update_points, p, [pts, run.mat, nodes, dx, dt, 0, int(schedule.hold), out]),
         ]
 
