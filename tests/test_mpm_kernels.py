@@ -220,23 +220,3 @@ def test_scene_groups_on_threads_give_the_one_thread_trajectories_bit_for_bit():
         for a, b in zip(runs[1], runs[threads]):
             assert np.array_equal(a.positions, b.positions), f"{threads} threads changed {a.name}"
 
-
-@pytest.mark.parametrize("make", [on_fixed_ground, lambda: column_scene(24.0, 24.0, 25.0, 5.0, 2.0, 16)],
-                         ids=["fixed-ground", "column"])
-def test_one_scene_on_two_threads_gives_the_one_thread_trajectory_bit_for_bit(make, monkeypatch):
-    """A lone scene on two threads: each owns a run of nodes and half the points, and sums every
-    point's transfers into its own nodes in point order, so every position is the one-thread one."""
-    monkeypatch.setattr(kernels, "SPLIT_POINTS", 10)
-    scene = make()
-    runs = {}
-    before = torch.get_num_threads()
-    try:
-        for threads in (1, 2):
-            torch.set_num_threads(threads)
-            batch = build_batch([scene], torch.device("cpu"), torch.float64)
-            assert kernels.WarpSubstep(batch.grid, batch.pts).split == (threads == 2)
-            runs[threads] = run_batch(batch, 16, progress=False)[0].positions
-    finally:
-        torch.set_num_threads(before)
-    assert np.abs(runs[1][-1] - runs[1][0]).max() > 0.5  # m: it moves
-    assert np.array_equal(runs[1], runs[2])

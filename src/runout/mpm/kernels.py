@@ -31,7 +31,6 @@ the same cache on first use. Units: m, s, kg per metre of thickness, Pa; tension
 
 from __future__ import annotations
 
-import threading
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -48,7 +47,7 @@ from runout.mpm.solver import DILUTE, LOOSE, PAD, Grid, Points
 Real = wp.float64  # every real number of the substep; literals must carry it (Warp does not mix widths)
 NODE = wp.constant(wp.vec3d(0.0, 1.0, 2.0))  # stencil node index a as a real: NODE[a] (Real(a) would retype the loop index)
 FREE = 2**31 - 1  # a point's last stress-updating relaxation step when it has none (a normal run)
-SPLIT_POINTS = 2000  # a lone scene with at least this many points runs on two threads (fewer: the barriers cost more)
+UPDATE_STEP = 5  # index of update_points' `step` argument
 MAX_RULES = 4  # constraints on one node (a side wall, the base or top, the fixed ground): a fixed loop bound
 
 
@@ -291,21 +290,11 @@ def clear_grid(nodes: NodeArrays):
     nodes.volumetric[n] = Real(0.0)
 
 
-@wp.func
-def outside(first: int, ny: int, lo: int, hi: int):
-    """Whether no node of the stencil from `first` lies in the node range [lo, hi)."""
-    return first + 2 * ny + 2 < lo or first >= hi
-
-
 @wp.kernel
-def p2g(pts: PointArrays, nodes: NodeArrays, dx: Real, dt_d_inv: Real, lo: int, hi: int):
-    """Mass, APIC momentum m (v + C (x_i - x_p)) and impulse -dt V D^-1 sigma (x_i - x_p) to the 9
-    nodes, those of them in [lo, hi) (all nodes, or one thread's share: each node still sums its
-    points in point order)."""
+def p2g(pts: PointArrays, nodes: NodeArrays, dx: Real, dt_d_inv: Real):
+    """Mass, APIC momentum m (v + C (x_i - x_p)) and impulse -dt V D^-1 sigma (x_i - x_p) to the 9 nodes."""
     p = wp.tid()
     first, fx = stencil_origin(pts.x[p], Real(1.0) / dx, pts.node_base[p], pts.ny[p])
-    if outside(first, pts.ny[p], lo, hi):
-        return
     wx = bspline(fx[0])
     wy = bspline(fx[1])
     m = pts.mass[p]
@@ -320,10 +309,9 @@ def p2g(pts: PointArrays, nodes: NodeArrays, dx: Real, dt_d_inv: Real, lo: int, 
             w = wx[a] * wy[b]
             offset = wp.vec2d(NODE[a] * dx, NODE[b] * dx)
             node = first + a * pts.ny[p] + b
-            if node >= lo and node < hi:
-                wp.atomic_add(nodes.mass, node, m * w)
-                wp.atomic_add(nodes.momentum, node, w * (affine @ offset - shift_m))
-                wp.atomic_add(nodes.impulse, node, w * (force @ offset - shift_f))
+            wp.atomic_add(nodes.mass, node, m * w)
+            wp.atomic_add(nodes.momentum, node, w * (affine @ offset - shift_m))
+            wp.atomic_add(nodes.impulse, node, w * (force @ offset - shift_f))
 
 
 @wp.kernel
@@ -332,6 +320,10 @@ def grid_update(nodes: NodeArrays, gravity_dt: Real, damping: Real):
     contact in grid.constraints order, then stuck nodes (solver.grid_update)."""
     n = wp.tid()
     m = nodes.mass[n]
+    if m <= Real(0.0):  # no points: every rule leaves a zero velocity zero
+        nodes.velocity[n] = wp.vec2d(Real(0.0), Real(0.0))
+        nodes.velocity_before[n] = wp.vec2d(Real(0.0), Real(0.0))
+        return
     before = wp.vec2d(Real(0.0), Real(0.0))
     dv = wp.vec2d(Real(0.0), Real(0.0))
     if m > Real(0.0):
@@ -363,21 +355,9 @@ def clamp(a: Real, low: Real, high: Real):
     return a
 
 
-@wp.func
-def add_volumetric(nodes: NodeArrays, first: int, ny: int, wx: wp.vec3d, wy: wp.vec3d, m_tr: Real, lo: int, hi: int):
-    """m tr(C) w to the stencil's nodes in [lo, hi)."""
-    for a in range(3):
-        for b in range(3):
-            node = first + a * ny + b
-            if node >= lo and node < hi:
-                wp.atomic_add(nodes.volumetric, node, m_tr * (wx[a] * wy[b]))
-
-
 @wp.kernel
-def g2p(pts: PointArrays, nodes: NodeArrays, dx: Real, dt: Real, flip: Real, wave: int, out: NewState,
-        lo: int, hi: int):
-    """Velocity, APIC C, FLIP blend and the clamped move (solver.g2p); then m tr(C) to the nodes
-    in [lo, hi) (none when lo = hi: `volumetric` adds it after all points' C are known)."""
+def g2p(pts: PointArrays, nodes: NodeArrays, dx: Real, dt: Real, flip: Real, wave: int, out: NewState):
+    """Velocity, APIC C, FLIP blend and the clamped move (solver.g2p); then m tr(C) to the nodes."""
     p = wp.tid()
     first, fx = stencil_origin(pts.x[p], Real(1.0) / dx, pts.node_base[p], pts.ny[p])
     wx = bspline(fx[0])
@@ -403,19 +383,10 @@ def g2p(pts: PointArrays, nodes: NodeArrays, dx: Real, dt: Real, flip: Real, wav
     x = pts.x[p] + dt * v_pic  # positions follow the grid (PIC) velocity
     upper = pts.upper[p]
     out.x_moved[p] = wp.vec2d(clamp(x[0], eps, upper[0] - eps), clamp(x[1], eps, upper[1] - eps))
-    if hi > lo:
-        add_volumetric(nodes, first, pts.ny[p], wx, wy, pts.mass[p] * (C[0, 0] + C[1, 1]), lo, hi)
-
-
-@wp.kernel
-def volumetric(pts: PointArrays, nodes: NodeArrays, dx: Real, out: NewState, lo: int, hi: int):
-    """g2p's m tr(C) to the nodes in [lo, hi), from the C it wrote (one thread's share of nodes)."""
-    p = wp.tid()
-    first, fx = stencil_origin(pts.x[p], Real(1.0) / dx, pts.node_base[p], pts.ny[p])
-    if outside(first, pts.ny[p], lo, hi):
-        return
-    C = out.C_grid[p]
-    add_volumetric(nodes, first, pts.ny[p], bspline(fx[0]), bspline(fx[1]), pts.mass[p] * (C[0, 0] + C[1, 1]), lo, hi)
+    m_tr = pts.mass[p] * (C[0, 0] + C[1, 1])
+    for a in range(3):
+        for b in range(3):
+            wp.atomic_add(nodes.volumetric, first + a * pts.ny[p] + b, m_tr * (wx[a] * wy[b]))
 
 
 @wp.kernel
@@ -504,8 +475,8 @@ class WarpSubstep:
         self.new = NewState()
         self.threads = threads if threads is not None else (torch.get_num_threads() if self.device.is_cpu else 1)
         self.groups = scene_groups(pts.scene, grid.node_offset, grid.size, self.threads)
-        self.split = len(self.groups) == 1 and self.threads > 1 and self.n_points >= SPLIT_POINTS
         self._views: list[tuple] = []
+        self._plans: dict[tuple, list] = {}  # packed launches by (arrays, settings)
         self._pool: ThreadPoolExecutor | None = None
 
     def __call__(self, pts: Points, grid: Grid, dt: float, flip: float | str = FLIP_WAVE, damping: float = 0.0) -> None:
@@ -529,23 +500,19 @@ class WarpSubstep:
         if self.n_points == 0:
             return
         self._bind(pts)
-        if self.split:
-            self._split_substeps(pts, dx, dt, flip, damping, substeps, hold)
-            return
-        if len(self.groups) == 1:
-            for k in range(substeps):
-                self._launch(pts, dx, dt, flip, damping, step=k, hold=hold)
-            return
-        views = self._group_views()
+        plans = [self._plan(view, dx, dt, flip, damping, hold) for view in self._group_views()]
 
-        def run(view) -> None:
+        def run(plan) -> None:
             for k in range(substeps):
-                self._launch_arrays(*view, dx, dt, flip, damping, k, hold)
+                self._replay(plan, k)
 
+        if len(plans) == 1:
+            run(plans[0])
+            return
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=len(views) - 1, thread_name_prefix="runout-mpm")
-        pending = [self._pool.submit(run, view) for view in views[1:]]
-        run(views[0])
+            self._pool = ThreadPoolExecutor(max_workers=len(plans) - 1, thread_name_prefix="runout-mpm")
+        pending = [self._pool.submit(run, plan) for plan in plans[1:]]
+        run(plans[0])
         for job in pending:
             job.result()
 
@@ -553,75 +520,37 @@ class WarpSubstep:
         if self.n_points == 0:
             return
         arrays = self._bind(pts)
-        self._launch_arrays(arrays, self.new, self.mat, self.nodes, self.nodes, dx, dt, flip, damping, step, hold)
+        view = (arrays, self.new, self.mat, self.nodes, self.nodes)
+        self._replay(self._plan(view, dx, dt, flip, damping, hold), step)
 
-    def _launch_arrays(self, arrays: PointArrays, new: NewState, mat: MaterialConstants, nodes: NodeArrays,
-                       own_nodes: NodeArrays, dx: float, dt: float, flip, damping: float, step: int, hold: int) -> None:
-        """One substep of the points in `arrays` on the nodes `own_nodes` (the nodes of their
-        scenes, a view of `nodes`, which the point kernels index globally)."""
-        n, p = own_nodes.mass.shape[0], arrays.x.shape[0]
-        wave = int(flip == FLIP_WAVE)
-        share = 0.0 if wave else float(flip)
-        every = (0, nodes.mass.shape[0])  # the points' nodes are all theirs (a whole batch, or whole scenes)
-        self._run(clear_grid, n, own_nodes)
-        self._run(p2g, p, arrays, nodes, dx, dt * (4.0 / dx**2), *every)
-        self._run(grid_update, n, own_nodes, GRAVITY * dt, float(damping))
-        self._run(g2p, p, arrays, nodes, dx, dt, share, wave, new, *every)
-        self._run(update_points, p, arrays, mat, nodes, dx, dt, step, hold, new)
+    def _plan(self, view: tuple, dx: float, dt: float, flip, damping: float, hold: int) -> list:
+        """One substep of the points in view's arrays on its own nodes (the nodes of their scenes,
+        a view of all nodes, which the point kernels index globally): the five launches, packed
+        once (wp.Launch) for these arrays and settings and replayed every substep."""
+        key = (id(view[0]), dx, dt, str(flip), damping, hold)
+        if key not in self._plans:
+            arrays, new, mat, nodes, own_nodes = view
+            n, p = own_nodes.mass.shape[0], arrays.x.shape[0]
+            wave = int(flip == FLIP_WAVE)
+            share = 0.0 if wave else float(flip)
+            self._plans[key] = [
+                self._record(clear_grid, n, own_nodes),
+                self._record(p2g, p, arrays, nodes, dx, dt * (4.0 / dx**2)),
+                self._record(grid_update, n, own_nodes, GRAVITY * dt, float(damping)),
+                self._record(g2p, p, arrays, nodes, dx, dt, share, wave, new),
+                self._record(update_points, p, arrays, mat, nodes, dx, dt, 0, hold, new),
+            ]
+        return self._plans[key]
 
-    def _split_substeps(self, pts: Points, dx: float, dt: float, flip, damping: float, substeps: int,
-                        hold: int) -> None:
-        """One batch of one group (one scene) on two threads. Each thread owns a run of nodes
-        (about half the points lie left of the split column) and half of the points: it sums
-        every point's transfers into its own nodes only, in point order, and updates its own
-        points; the threads wait for each other at four barriers per substep. Every node and
-        point gets the one-thread arithmetic in the one-thread order."""
-        arrays, new, mat, nodes = self.arrays, self.new, self.mat, self.nodes
-        n_nodes, n_points = self.n_nodes, self.n_points
-        ny = int(self._ints["ny"][0])
-        base = int(self._ints["node_base"][0])
-        column = int(torch.median(pts.x[:, 0]).item() / dx) + PAD  # grid column of the median point
-        cut = min(max(base + column * ny, 0), n_nodes)
-        owned = ((0, cut), (cut, n_nodes))
-        half = n_points // 2
-        parts = [(sliced(arrays, PointArrays(), p0, p1), sliced(new, NewState(), p0, p1),
-                  sliced(mat, MaterialConstants(), p0, p1), sliced(nodes, NodeArrays(), n0, n1), n0, n1)
-                 for (p0, p1), (n0, n1) in zip(((0, half), (half, n_points)), owned)]
-        wave = int(flip == FLIP_WAVE)
-        share = 0.0 if wave else float(flip)
-        barrier = threading.Barrier(2)
+    def _record(self, kernel, dim: int, *inputs) -> wp.Launch:
+        return wp.launch(kernel, dim=dim, inputs=list(inputs), device=self.device, record_cmd=True)
 
-        def run(part) -> None:
-            my_points, my_new, my_mat, my_nodes, lo, hi = part
-            mine = my_points.x.shape[0]
-            try:
-                for k in range(substeps):
-                    self._run(clear_grid, hi - lo, my_nodes)
-                    self._run(p2g, n_points, arrays, nodes, dx, dt * (4.0 / dx**2), lo, hi)
-                    self._run(grid_update, hi - lo, my_nodes, GRAVITY * dt, float(damping))
-                    barrier.wait()  # every node's velocity
-                    self._run(g2p, mine, my_points, nodes, dx, dt, share, wave, my_new, 0, 0)
-                    barrier.wait()  # every point's C
-                    self._run(volumetric, n_points, arrays, nodes, dx, new, lo, hi)
-                    barrier.wait()  # every node's volumetric rate
-                    self._run(update_points, mine, my_points, my_mat, nodes, dx, dt, k, hold, my_new)
-                    barrier.wait()  # every point's new state, before the nodes are cleared
-            except BaseException:
-                barrier.abort()
-                raise
-
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="runout-mpm")
-        other = self._pool.submit(run, parts[1])
-        try:
-            run(parts[0])
-        except BaseException:
-            other.exception()  # wait for it (its barrier was broken); this thread's error is the one raised
-            raise
-        other.result()
-
-    def _run(self, kernel, dim: int, *inputs) -> None:
-        wp.launch(kernel, dim=dim, inputs=list(inputs), device=self.device, stream=self.stream)
+    def _replay(self, launches: list, step: int) -> None:
+        """Run packed launches, update_points told it is substep `step` (the relaxation's count)."""
+        for launch in launches:
+            if launch.kernel is update_points:
+                launch.set_param_at_index(UPDATE_STEP, step)
+            launch.launch(self.stream)
 
     def _bind(self, pts: Points) -> PointArrays:
         """The point arrays as Warp views of pts's tensors, remade only when a tensor was replaced."""
@@ -651,6 +580,7 @@ class WarpSubstep:
         new.x, new.v, new.stress, new.volume = a.x, a.v, a.stress, a.volume
         self._bound = key
         self._views = []
+        self._plans = {}
         return a
 
     def _group_views(self) -> list[tuple]:

@@ -30,7 +30,7 @@ import warp as wp
 from runout.defaults import FLIP_WAVE
 from runout.mpm.geostatic import GRAVITY
 from runout.mpm.kernels import (
-    FREE, MaterialConstants, NewState, NodeArrays, PointArrays, Real, g2p, grid_update, node_arrays, p2g,
+    FREE, UPDATE_STEP, MaterialConstants, NewState, NodeArrays, PointArrays, Real, g2p, grid_update, node_arrays, p2g,
     update_points, with_transfers,
 )
 from runout.mpm.mohr_coulomb import MaterialArrays
@@ -41,7 +41,6 @@ STRENGTHS = ("sin_phi", "cohesion", "tension", "c_cos", "corner3")  # the Materi
 _TYPES = {"x": wp.vec2d, "v": wp.vec2d, "C": wp.mat22d, "stress": wp.vec4d, "volume": Real}
 _SCATTERED = ("mass", "momentum", "impulse", "volumetric")  # node arrays p2g and g2p add into
 _TRANSFERS = _SCATTERED + ("velocity", "velocity_before")
-_STEP = 5  # index of update_points' `step` argument
 
 
 def strength_tensors(mat: MaterialArrays) -> tuple[torch.Tensor, ...]:
@@ -245,7 +244,7 @@ class _ArraySet:
         """Run packed launches of one substep, update_points told it is substep `step`."""
         for launch in launches:
             if launch.kernel is update_points:
-                launch.set_param_at_index(_STEP, step)
+                launch.set_param_at_index(UPDATE_STEP, step)
             launch.launch()
 
     def _record(self, schedule: Schedule, k: int, adjoint: bool) -> list[wp.Launch]:
@@ -263,9 +262,9 @@ class _ArraySet:
         share = 0.0 if wave else float(schedule.flip)
         p, g = run.n_points, run.n_nodes
         return [
-            (p2g, p, [pts, nodes, dx, dt * (4.0 / dx**2), 0, g]),
+            (p2g, p, [pts, nodes, dx, dt * (4.0 / dx**2)]),
             (grid_update, g, [nodes, GRAVITY * dt, float(schedule.damping)]),
-            (g2p, p, [pts, nodes, dx, dt, share, wave, out, 0, g]),
+            (g2p, p, [pts, nodes, dx, dt, share, wave, out]),
             (update_points, p, [pts, run.mat, nodes, dx, dt, 0, int(schedule.hold), out]),
         ]
 
