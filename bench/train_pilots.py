@@ -51,7 +51,11 @@ PRESETS: dict[str, list[str]] = {
     # from an exact-rest pilot's checkpoint: pushforward k (the model's own errors instead of more noise), activations kept
     **{f"x-noise{n}-exact-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--exact-rest",
                                    "--pushforward", k, "--no-checkpoint-layers"]
-       for n in ("0.03", "0.1", "0.3") for k in ("1", "2")},
+       for n in ("0.01", "0.03", "0.1", "0.3") for k in ("1", "2", "3")},
+    # from a pushforward pilot's checkpoint: the loss weighted toward moving points
+    **{f"x-noise{n}-exact-pf2-mw{w}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--exact-rest",
+                                       "--pushforward", "2", "--no-checkpoint-layers", "--moving-weight", w]
+       for n in ("0.01", "0.03") for w in ("4",)},
     **{f"r-noise{n}-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--pushforward", k]
        for n in ("0.1", "0.3", "0.6") for k in ("1", "2")},
     **{f"r-noise{n}-mw{w}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--moving-weight", w]
