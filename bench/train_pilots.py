@@ -56,6 +56,11 @@ PRESETS: dict[str, list[str]] = {
     **{f"x-noise{n}-exact-pf2-mw{w}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--exact-rest",
                                        "--pushforward", "2", "--no-checkpoint-layers", "--moving-weight", w]
        for n in ("0.01", "0.03") for w in ("4",)},
+    # from a pushforward pilot's checkpoint: a share of the windows drawn from the first 20 frames (the onset)
+    **{f"x-noise{n}-exact-pf2-onset{f}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n,
+                                          "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
+                                          "--onset-share", f, "--onset-frames", "20"]
+       for n in ("0.01", "0.03") for f in ("0.25", "0.5")},
     **{f"r-noise{n}-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--pushforward", k]
        for n in ("0.1", "0.3", "0.6") for k in ("1", "2")},
     **{f"r-noise{n}-mw{w}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--moving-weight", w]

@@ -178,3 +178,32 @@ def test_the_pushforward_option_checks_its_range(tmp_path, capsys, value):
     code, err = run(["train", "--data", data, "--out", tmp_path / "run", "--steps", "1", "--pushforward", value], capsys)
     assert code == 2 and one_sentence(err)
     assert f"--pushforward = {value} is outside the allowed range [0, 10]." in err
+
+
+def test_onset_share_draws_windows_from_the_first_frames_of_every_simulation(tmp_path):
+    """--onset-share 1: every window starts in its simulation's first --onset-frames frames
+    (counted from the earliest start, the windows at rest); 0 draws exactly as before; 0.5 about
+    half of them."""
+    data = write_dataset(tmp_path / "data", frames=40, n_train=3)
+    sims = Simulations(data / "train.npz", torch.device("cpu"))  # windows at rest: starts from frame -5
+    first = sims._windows(0)
+    uniform = sims.sample(8, torch.Generator().manual_seed(3))
+    same = sims.sample(8, torch.Generator().manual_seed(3), onset_share=0.0)
+    assert torch.equal(uniform.window, same.window)
+
+    def start_frames(share: float, seed: int) -> list[int]:
+        gen = torch.Generator().manual_seed(seed)
+        batch = sims.sample(16, gen, onset_share=share, onset_frames=4)
+        every = [p for p, _, _ in read_simulations(data / "train.npz")]
+
+        def start(window) -> int:  # the window's frames are frames t..t+5 (frame 0 held before it) of one simulation
+            return next(t for p in every if p.shape[1] == window.shape[1] for t in range(sims.first_start, len(p) - 6)
+                        if np.array_equal(window, p[np.clip(np.arange(t, t + 6), 0, None)]))
+
+        return [start(batch.window[batch.graph == g].transpose(0, 1).numpy()) for g in range(16)]
+
+    onset = start_frames(1.0, 0)
+    assert len(onset) == 16 and all(sims.first_start <= t < sims.first_start + 4 for t in onset)
+    mixed = [t < sims.first_start + 4 for seed in range(4) for t in start_frames(0.5, seed)]
+    assert 16 <= sum(mixed) <= 56  # about 32 of 64 (the uniform draws seldom land there: 4 of 35 starts)
+    assert len(first) == 4

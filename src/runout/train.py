@@ -277,7 +277,8 @@ def _native_bf16(cfg: TrainConfig, ctx: Context) -> TrainConfig:
 
 def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> torch.Tensor:
     sampler, noise_gen = _generators(cfg.seed, step, ctx)
-    batch = data.sample(cfg.batch_size, sampler, unrolled_steps(cfg.seed, step, cfg.pushforward))
+    batch = data.sample(cfg.batch_size, sampler, unrolled_steps(cfg.seed, step, cfg.pushforward),
+                        cfg.onset_share, cfg.onset_frames)
     case = Case.of(batch.particle_type, bounds)
     autocast = torch.autocast(ctx.device.type, dtype=torch.bfloat16) if cfg.bf16 else nullcontext()
     with autocast:  # the model's own rollout from the true window, without gradient (none when batch.unroll is 0)

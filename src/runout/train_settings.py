@@ -30,6 +30,8 @@ class TrainConfig:
     exact_rest: bool = False  # no noise on the held copies of frame 0 in a window (a rollout starts from them exactly)
     static_tail: int | None = None  # frames kept after a simulation's flow stops (None: all)
     moving_weight: float = 1.0  # loss weight of a point moving faster than MOVING_SPEED against 1 for one that does not
+    onset_share: float = 0.0  # share of the windows drawn from each simulation's first onset_frames frames (0: uniform)
+    onset_frames: int = 20  # dataset frames from the earliest window start that count as the onset of motion
     seed: int = 0
     device: str = "auto"  # auto, cpu, cuda, cuda:1, ...
     resume: bool = False
@@ -63,6 +65,7 @@ SETTING_LIMITS = {
     "steps": Limit(1, MAX_STEPS), "batch_size": Limit(1, 64), "lr_init": Limit(0.0, 1.0, lo_open=True),
     "lr_decay_steps": Limit(1.0, 1e12), "noise": Limit(0.0, 10.0, " velocity std"),
     "static_tail": Limit(0, 1_000_000, " frames"), "moving_weight": Limit(1.0, 1000.0),
+    "onset_share": Limit(0.0, 1.0), "onset_frames": Limit(1, 1_000_000, " frames"),
     "save_every": Limit(1, 1_000_000_000), "log_every": Limit(1, 1_000_000_000), "valid_every": Limit(0, 1_000_000_000),
     "valid_trajectories": Limit(1, 10_000), "valid_frames": Limit(0, MAX_FRAMES), "max_hours": Limit(0.0, 1000.0, " h"),
     "radius": Limit(0.1, 1000.0, " m"), "frame_stride": Limit(*SCHEMA_LIMITS["frame_stride"]),

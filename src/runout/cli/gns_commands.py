@@ -38,6 +38,8 @@ def train(
     rest_windows: bool = typer.Option(TrainConfig.rest_windows, "--rest-windows/--no-rest-windows", help="Also train on windows that start before frame 0 (the scene at rest, where every rollout starts)."),
     exact_rest: bool = typer.Option(TrainConfig.exact_rest, "--exact-rest/--noisy-rest", help="Put no noise on a window's held copies of frame 0 (a rollout starts from the scene at rest exactly; the noise walk starts with its first step)."),
     moving_weight: float = typer.Option(TrainConfig.moving_weight, "--moving-weight", help="Loss weight of a point moving faster than 0.25 m/s over its target step, against 1 for a slower one (1: every point the same)."),
+    onset_share: float = typer.Option(TrainConfig.onset_share, "--onset-share", help="Share of the windows drawn from the onset of motion, each simulation's first --onset-frames frames (windows at rest included), instead of uniformly (0: uniform)."),
+    onset_frames: int = typer.Option(TrainConfig.onset_frames, "--onset-frames", help="Dataset frames from the earliest window start that count as the onset (--onset-share)."),
     static_tail: int = typer.Option(TrainConfig.static_tail, "--static-tail", help="Train only up to this many frames after a simulation's flow stops (soil slower than 0.05 m/s); default: every frame."),
     latent: int = typer.Option(NetworkConfig.latent, "--latent", help="Latent size of nodes and edges."),
     hidden: int = typer.Option(NetworkConfig.hidden, "--hidden", help="Units of each hidden MLP layer."),
@@ -61,6 +63,7 @@ def train(
     cfg = TrainConfig(
         data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise=noise,
         rest_windows=rest_windows, exact_rest=exact_rest, static_tail=static_tail, moving_weight=moving_weight,
+        onset_share=onset_share, onset_frames=onset_frames,
         seed=seed, device=device, resume=resume, init=init,
         network=NetworkConfig(latent=latent, hidden=hidden, message_passing_steps=message_passing),
         save_every=save_every, log_every=log_every, valid_every=valid_every,

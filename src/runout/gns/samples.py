@@ -151,9 +151,23 @@ class Simulations:
         """The node-feature schema these data call for (base's other fields)."""
         return base.with_material_features(self.material_names)
 
-    def sample(self, batch_size: int, generator: torch.Generator, unroll: int = 0) -> TrainingBatch:
-        """`batch_size` windows drawn uniformly from those with room for `unroll` pushforward steps."""
+    def sample(self, batch_size: int, generator: torch.Generator, unroll: int = 0, onset_share: float = 0.0,
+               onset_frames: int = 20) -> TrainingBatch:
+        """`batch_size` windows drawn uniformly from those with room for `unroll` pushforward steps;
+        with onset_share > 0, each is drawn with that probability from the onset instead: a
+        simulation chosen uniformly, then a start among its first onset_frames frames (counted
+        from the earliest start, so windows at rest included), where failure begins and the
+        material decides whether anything moves."""
         picks = torch.randint(self.n_windows_for(unroll), (batch_size,), generator=generator).tolist()
+        if onset_share > 0.0:
+            first = self._windows(unroll)
+            onset = torch.rand(batch_size, generator=generator) < onset_share
+            sims = torch.randint(len(self.positions), (batch_size,), generator=generator).tolist()
+            offsets = torch.randint(onset_frames, (batch_size,), generator=generator).tolist()
+            for b in range(batch_size):
+                count = first[sims[b] + 1] - first[sims[b]]  # the simulation's windows, earliest start first
+                if onset[b] and count > 0:
+                    picks[b] = first[sims[b]] + min(offsets[b], count - 1)
         parts = [self._window(k, unroll) for k in picks]
         window, future, ptype, material = (torch.cat(x) for x in list(zip(*parts))[:4])
         graph = torch.cat([torch.full((len(p[0]),), g, device=window.device) for g, p in enumerate(parts)])
