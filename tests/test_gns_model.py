@@ -225,3 +225,24 @@ def test_a_window_knows_how_many_of_its_positions_are_the_scene_at_rest(tmp_path
 
     sims = Simulations(write_dataset(tmp_path / "data", frames=20, n_train=1) / "train.npz", torch.device("cpu"))
     assert [sims._window(k)[4] for k in range(8)] == [6, 5, 4, 3, 2, 1, 0, 0]
+
+
+def test_renormalising_keeps_the_predictions_and_takes_the_new_scales():
+    """Fine-tuning at a lower noise (--init) narrows the scales; the model must predict the same
+    next positions, so that training starts from the base's predictions."""
+    frames, ptype = heap()
+    sim = tiny_simulator()
+    with torch.no_grad():  # a network whose velocity columns and output matter
+        for p in sim.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    window, material = frames.transpose(0, 1), torch.full((40, 1), 0.5)
+    with torch.no_grad():
+        before = sim.next_positions(window, ptype, material, BOUNDS)
+    narrow = Normalisation((0.004, -0.02), (0.05, 0.01), (1e-4, -2e-3), (1e-3, 5e-4), 1e-4)
+    sim.renormalise(narrow)
+    assert sim.stats == narrow
+    torch.testing.assert_close(sim.acc_scale, torch.tensor([1e-3, 5e-4]).square().add(1e-8).sqrt())
+    with torch.no_grad():
+        after = sim.next_positions(window, ptype, material, BOUNDS)
+    torch.testing.assert_close(after, before, rtol=0, atol=1e-5)  # m, of positions up to 22 m
+    assert (after - window[:, -1]).abs().max() > 1e-3  # the check is not about a model that stands still

@@ -371,8 +371,9 @@ def _start(cfg: TrainConfig, meta: dict, data: Simulations):
         if cfg.frame_stride not in (None, simulator.frame_stride):
             _restride(simulator, cfg.frame_stride, meta, data, cfg.noise)
         else:  # --noise is a fraction of this data's velocity std, whatever the base model trained with; the
-            # normalisation buffers stay the base's (widened by its noise), so training starts from its predictions
-            simulator.stats = replace(simulator.stats, noise_std=cfg.noise * noise_scale(_statistics(meta, data, simulator.frame_stride)))
+            # normalisation becomes this data's widened by this noise, the weights adjusted so that training
+            # starts from the base's predictions (a noisier base's scales would shrink the targets)
+            simulator.renormalise(_stride_statistics(meta, data, simulator.frame_stride, cfg.noise))
         wanted = data.schema(simulator.schema)
         if wanted.material_features != simulator.schema.material_features:
             widen_material_features(simulator, wanted.material_features, cfg.init)
