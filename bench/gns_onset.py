@@ -39,6 +39,16 @@ def spread(model: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return corr, slope
 
 
+def last_step(path: Path):
+    """The simulator of a checkpoint's last-step weights (train_model, saved by --ema runs), or None."""
+    from runout.gns.checkpoint import read_checkpoint, simulator_from_checkpoint
+
+    ckpt = read_checkpoint(path)
+    if "train_model" not in ckpt:
+        return None
+    return simulator_from_checkpoint({**ckpt, "model": ckpt["train_model"]}, path).eval()
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("models", type=Path, nargs="+")
@@ -46,6 +56,8 @@ def main() -> None:
     ap.add_argument("--valid", type=int, default=16, help="validation scenes (the first ones)")
     ap.add_argument("--at", default="20,60,120", help="frames at which displacements are compared (multiples of the stride)")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--last-step", action="store_true",
+                    help="also roll out each checkpoint's last-step weights (train_model) beside its weight average (--ema runs)")
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
 
@@ -60,12 +72,14 @@ def main() -> None:
     mpm = np.array([[displacement(t.positions, f, t.soil) for f in at] for t in truths])
     print(f"# {len(truths)} valid scenes of {args.data}, from rest; mean soil displacement (m) at frames {at}")
     print("MPM " + " | ".join(f"frame {f}: {np.round(mpm[:, j], 2).tolist()}" for j, f in enumerate(at)))
-    for path in args.models:
-        simulator = load_simulator(path)
+    models = [(str(path), load_simulator(path)) for path in args.models]
+    if args.last_step:
+        models += [(f"{path} (last step's weights)", last_step(path)) for path in args.models if last_step(path) is not None]
+    for name, simulator in models:
         gns = np.array([[displacement(r.positions, f // simulator.frame_stride, t.soil) for f in at]
                         for t in truths
                         for r in [rollout_trajectory(simulator, t, at[-1] + 1, stop_speed=None)]])
-        print(f"# {path}")
+        print(f"# {name}")
         for j, f in enumerate(at):
             corr, slope = spread(gns[:, j], mpm[:, j])
             print(f"  frame {f}: mean {gns[:, j].mean():.2f} m (MPM {mpm[:, j].mean():.2f}), correlation {corr:.2f}, "

@@ -61,6 +61,11 @@ PRESETS: dict[str, list[str]] = {
                                           "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
                                           "--onset-share", f, "--onset-frames", "20"]
        for n in ("0.01", "0.03") for f in ("0.25", "0.5")},
+    # the same, saving a weight average over about 1,000 steps (--ema 0.999): one step's weights swing the onset
+    **{f"x-noise{n}-exact-pf2-onset0.25-ema": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n,
+                                               "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
+                                               "--onset-share", "0.25", "--onset-frames", "20", "--ema", "0.999"]
+       for n in ("0.01", "0.03")},
     **{f"r-noise{n}-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--pushforward", k]
        for n in ("0.1", "0.3", "0.6") for k in ("1", "2")},
     **{f"r-noise{n}-mw{w}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--moving-weight", w]

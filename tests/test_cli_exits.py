@@ -80,6 +80,7 @@ def test_an_unknown_option_is_exit_2(capsys):
     ("--static-tail", "-3", "--static-tail = -3 is outside the allowed range [0, 1e+06] frames"),
     ("--message-passing-steps", "500", "--message-passing-steps = 500 is outside the allowed range [1, 50]"),
     ("--lr", "0", "--lr = 0 is outside the allowed range (0, 1]"),
+    ("--ema", "1", "--ema = 1 is outside the allowed range [0, 0.99999]"),
 ])
 def test_a_bad_value_is_exit_2_before_any_work(tmp_path, capsys, option, value, words):
     code, err = run(["train", "--data", tmp_path / "none", "--out", tmp_path / "run", option, value], capsys)

@@ -66,6 +66,42 @@ def test_a_chunk_out_of_time_saves_its_last_step_and_resumes_exactly(tmp_path):
         assert torch.equal(a, b)
 
 
+def test_the_weight_average_is_the_saved_model_and_resumes_exactly(tmp_path):
+    """--ema d: the checkpoint's model is avg <- d avg + (1 - d) w over the steps, the training
+    itself is that of a run without it, and a broken run resumes both exactly."""
+    data = write_dataset(tmp_path / "data")
+    start = train(config(data, tmp_path / "start", steps=1, lr_init=1e-12))  # the initial weights, to 1e-11
+    one = train(config(data, tmp_path / "one", steps=1))
+    averaged = train(config(data, tmp_path / "avg1", steps=1, ema=0.75))
+    for name, w in averaged.named_parameters():
+        expected = 0.75 * dict(start.named_parameters())[name] + 0.25 * dict(one.named_parameters())[name]
+        assert torch.allclose(w, expected, atol=1e-7), name
+    plain = train(config(data, tmp_path / "plain", steps=12))
+    whole = train(config(data, tmp_path / "whole", steps=12, ema=0.9))
+    train(config(data, tmp_path / "broken", steps=5, ema=0.9))
+    resumed = train(config(data, tmp_path / "broken", steps=12, ema=0.9, resume=True))
+    ckpt = read_checkpoint(tmp_path / "whole" / "checkpoint.pt")
+    assert losses(tmp_path / "whole") == losses(tmp_path / "plain") == losses(tmp_path / "broken")
+    for (name, w), a, r, last in zip(plain.state_dict().items(), whole.state_dict().values(),
+                                     resumed.state_dict().values(), ckpt["train_model"].values()):
+        assert torch.equal(w, last), name  # the average does not change the training
+        assert torch.equal(a, r), name  # resumed exactly
+        assert torch.equal(a, ckpt["model"][name]) and torch.equal(a, load_simulator(tmp_path / "whole" / "checkpoint.pt").state_dict()[name])
+    assert any(not torch.equal(a, w) for a, w in zip(whole.parameters(), plain.parameters()))
+
+
+def test_resuming_last_step_weights_of_another_shape_is_refused_in_one_sentence(tmp_path):
+    data = write_dataset(tmp_path / "data")
+    train(config(data, tmp_path / "run", steps=2, ema=0.9))
+    path = tmp_path / "run" / "checkpoint.pt"
+    ckpt = torch.load(path, weights_only=True)
+    name = next(iter(ckpt["train_model"]))
+    ckpt["train_model"][name] = torch.zeros(3, 3, 3)
+    torch.save(ckpt, path)
+    with pytest.raises(InputError, match=rf"train_model\['{name}'\] is a float32 tensor of shape \(3, 3, 3\)"):
+        train(config(data, tmp_path / "run", steps=4, ema=0.9, resume=True))
+
+
 def test_a_hook_sees_every_step_and_can_end_the_run_saved_and_resumable(tmp_path):
     data = write_dataset(tmp_path / "data")
     seen = []

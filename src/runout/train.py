@@ -23,7 +23,7 @@ import os
 import signal
 import threading
 import time
-from contextlib import nullcontext
+from contextlib import contextmanager, nullcontext
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Callable
@@ -119,6 +119,8 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Simu
             meta, simulator.radius, f"measured on {data.path}",
         )
     simulator.to(ctx.device).train()
+    averaged = _last_step_weights(simulator, state)
+    average = WeightAverage(simulator, cfg.ema, averaged) if cfg.ema > 0 else None
     optimizer = torch.optim.Adam(simulator.parameters(), lr=cfg.lr_init)
     if state:
         optimizer.load_state_dict(state["optimizer"])
@@ -128,7 +130,7 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Simu
         optimizer=optimizer, data=data, bounds=torch.tensor(meta["bounds"], dtype=torch.float32, device=ctx.device),
         cfg=cfg, ctx=ctx, log=RunLog(Path(cfg.out), ctx, state["step"] if state else 0),
         best=state.get("best_valid", float("inf")) if state else float("inf"),
-        hooks=(*hooks, log_losses, validate, save),
+        hooks=(*hooks, log_losses, validate, save), average=average,
     )
     deadline = time.monotonic() + cfg.max_hours * 3600 if cfg.max_hours > 0 else None
     with StopRequest(deadline) as stop:
@@ -142,7 +144,60 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Simu
     if done < cfg.steps and ctx.writer:  # the chunk's time is up, or a hook stopped it: a normal end
         why = trainer.stop_reason or f"--max-hours {cfg.max_hours:g} reached"
         tqdm.write(f"{why} after step {done}; {Path(cfg.out) / CHECKPOINT} holds it and --resume continues from there.")
+    if average is not None:  # the model a run gives is the one it saves: the average
+        average.copy_to(simulator)
     return simulator.eval()
+
+
+def _last_step_weights(simulator: Simulator, state: dict | None) -> dict[str, torch.Tensor] | None:
+    """A resumed run that kept a weight average holds it as `model` (now in the simulator) and
+    its last step's weights as `train_model`: put those in the simulator, whose optimiser state
+    they are, and return the average's parameters (None when there is none)."""
+    if state is None or "train_model" not in state:
+        return None
+    averaged = {n: p.detach().clone() for n, p in simulator.named_parameters()}
+    simulator.load_state_dict(state["train_model"])
+    return averaged
+
+
+class WeightAverage:
+    """An exponential moving average of a simulator's parameters (float32), updated after
+    every optimiser step: avg <- decay avg + (1 - decay) w. With --ema the checkpoint's `model`
+    is the average (what rollouts, validation, --init and every command use) and `train_model`
+    the last step's weights, from which --resume goes on. A run that had no average starts
+    it from its current weights."""
+
+    def __init__(self, simulator: Simulator, decay: float, start: dict[str, torch.Tensor] | None = None):
+        self.decay = decay
+        source = start if start is not None else dict(simulator.named_parameters())
+        self.values = {n: source[n].detach().float().clone() for n, _ in simulator.named_parameters()}
+
+    @torch.no_grad()
+    def update(self, simulator: Simulator) -> None:
+        for name, p in simulator.named_parameters():
+            self.values[name].lerp_(p.detach().float(), 1.0 - self.decay)
+
+    def state_dict(self, simulator: Simulator) -> dict:
+        """simulator.state_dict() with the averaged parameters in place of the last step's."""
+        state = simulator.state_dict()
+        return {k: (self.values[k].to(v.dtype).clone() if k in self.values else v) for k, v in state.items()}
+
+    @torch.no_grad()
+    def copy_to(self, simulator: Simulator) -> None:
+        for name, p in simulator.named_parameters():
+            p.copy_(self.values[name])
+
+    @contextmanager
+    def applied(self, simulator: Simulator):
+        """The simulator with the averaged weights inside the block, its own after."""
+        own = {n: p.detach().clone() for n, p in simulator.named_parameters()}
+        self.copy_to(simulator)
+        try:
+            yield simulator
+        finally:
+            with torch.no_grad():
+                for name, p in simulator.named_parameters():
+                    p.copy_(own[name])
 
 
 Hook = Callable[["Trainer"], None]
@@ -171,6 +226,7 @@ class Trainer:
     losses: list[torch.Tensor] = field(default_factory=list)  # since the last log line
     saved_at: int = -1  # step of the last checkpoint written
     stop_reason: str | None = None  # set by a hook: stop after this step
+    average: WeightAverage | None = None  # --ema: the weight average saved as the model
 
     def run(self, start: int, stop: "StopRequest") -> int:
         """Steps from `start` to cfg.steps, or until a stop is asked for (Ctrl-C, the
@@ -181,6 +237,8 @@ class Trainer:
             for group in self.optimizer.param_groups:
                 group["lr"] = self.lr
             loss = _train_step(self.model, self.simulator, self.optimizer, self.data, self.bounds, self.cfg, step, self.ctx)
+            if self.average is not None:
+                self.average.update(self.simulator)
             self.losses.append(loss.detach())
             self.done = step + 1
             for hook in self.hooks:
@@ -197,7 +255,8 @@ class Trainer:
 
     def save(self) -> None:
         if self.ctx.writer:
-            _save(Path(self.cfg.out) / CHECKPOINT, self.simulator, self.optimizer, self.done, self.cfg, self.best)
+            _save(Path(self.cfg.out) / CHECKPOINT, self.simulator, self.optimizer, self.done, self.cfg, self.best,
+                  self.average)
         self.saved_at = self.done
 
 
@@ -213,7 +272,8 @@ def validate(trainer: Trainer) -> None:
     """Every valid_every steps, rollouts from rest on the validation set; best.pt kept."""
     cfg = trainer.cfg
     if cfg.valid_every and trainer.done % cfg.valid_every == 0 and trainer.ctx.writer:
-        trainer.best = _validate(trainer.simulator, cfg, trainer.log, trainer.done, trainer.best)
+        with trainer.average.applied(trainer.simulator) if trainer.average else nullcontext(trainer.simulator) as model:
+            trainer.best = _validate(model, cfg, trainer.log, trainer.done, trainer.best)
 
 
 def save(trainer: Trainer) -> None:
@@ -417,11 +477,13 @@ def _statistics(meta: dict, data: Simulations, stride: int) -> dict:
     return meta if stride == 1 else data.with_stride(stride).moments()
 
 
-def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: float) -> None:
+def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: float,
+          average: WeightAverage | None = None) -> None:
     train_settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
+    weights = {"model": average.state_dict(simulator), "train_model": simulator.state_dict()} if average else {}
     save_checkpoint(
         path, simulator, optimizer=optimizer.state_dict(), step=step, train=train_settings,
-        rng={"seed": cfg.seed, "torch": torch.get_rng_state()}, best_valid=best,
+        rng={"seed": cfg.seed, "torch": torch.get_rng_state()}, best_valid=best, **weights,
     )
 
 

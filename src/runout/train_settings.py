@@ -49,6 +49,7 @@ class TrainConfig:
     radius: float | None = None  # connectivity radius in m (None: the dataset's default)
     frame_stride: int | None = None  # dataset frames per GNS step (None: 1, or the checkpoint's on --resume / --init)
     pushforward: int = 0  # each step first unrolls n ~ U{0..pushforward} steps without gradient (0: one-step)
+    ema: float = 0.0  # decay per step of the weight average saved as the model (0: the last step's weights)
 
 
 @dataclass(frozen=True)
@@ -69,7 +70,7 @@ SETTING_LIMITS = {
     "save_every": Limit(1, 1_000_000_000), "log_every": Limit(1, 1_000_000_000), "valid_every": Limit(0, 1_000_000_000),
     "valid_trajectories": Limit(1, 10_000), "valid_frames": Limit(0, MAX_FRAMES), "max_hours": Limit(0.0, 1000.0, " h"),
     "radius": Limit(0.1, 1000.0, " m"), "frame_stride": Limit(*SCHEMA_LIMITS["frame_stride"]),
-    "pushforward": Limit(*PUSHFORWARD_LIMITS),
+    "pushforward": Limit(*PUSHFORWARD_LIMITS), "ema": Limit(0.0, 0.99999),
     **{name: Limit(lo, hi) for name, (lo, hi) in NETWORK_LIMITS.items()},
 }
 OPTION_NAMES = {"lr_init": "--lr"}  # the `runout train` options not named --field-name

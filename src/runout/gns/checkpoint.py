@@ -2,7 +2,8 @@
 
 Keys: format, schema (node-feature layout), stats (normalisation), radius (m), network
 (layer sizes), model (state dict), and for training runs optimizer, step, rng, train
-(the training settings), data_ranges (what the model was trained on, see
+(the training settings), train_model (with --ema: the last step's weights, while model holds
+their average, which every command uses), data_ranges (what the model was trained on, see
 runout.gns.training_range; its point_spacing_m is the spacing every GNS command fills a
 scene at, Simulator.point_spacing). Files are written atomically (temporary file, then
 os.replace), so a run killed while saving leaves the previous checkpoint intact.
@@ -123,6 +124,8 @@ def check_contents(ckpt: dict, path) -> None:
     if spacing is not None:
         checks.number(spacing, "data_ranges.point_spacing_m", path, 0.0, MAX_RADIUS, " m", lo_open=True)
     _check_weights(ckpt["model"], path)
+    if "train_model" in ckpt:  # a run that saves a weight average (--ema) keeps its last step's weights here
+        _check_weights(ckpt["train_model"], path, "train_model")
     _check_training_state(ckpt, path)
 
 
@@ -131,12 +134,12 @@ def _check_is_table(value, key: str, path) -> None:
         raise InputError(f"{path}: the checkpoint's '{key}' is a {type(value).__name__}; expected a table.")
 
 
-def _check_weights(model, path) -> None:
+def _check_weights(model, path, entry: str = "model") -> None:
     """Finite model weights: a NaN or infinite one is a damaged file or a diverged training run."""
-    _check_is_table(model, "model", path)
+    _check_is_table(model, entry, path)
     for key, value in model.items():
         if isinstance(value, torch.Tensor) and value.is_floating_point() and not torch.isfinite(value).all():
-            raise InputError(f"{path}: the model weight '{key}' holds NaN or infinite values where only finite "
+            raise InputError(f"{path}: the {entry} weight '{key}' holds NaN or infinite values where only finite "
                              "numbers are allowed, so the file is damaged or its training diverged.")
 
 
@@ -209,6 +212,13 @@ def check_resumable(ckpt: dict, simulator: Simulator, path, settings: type) -> N
             raise InputError(f"{path}: the checkpoint lacks '{key}', so training cannot resume from it "
                              "(a weights-only file such as best.pt starts a new run with --init).")
     _check_setting_types(ckpt["train"], settings, path)
+    if "train_model" in ckpt:  # --ema: the last step's weights, which the optimiser state belongs to
+        own, last = simulator.state_dict(), ckpt["train_model"]
+        wrong = [k for k in own if not isinstance(last.get(k), torch.Tensor) or last[k].shape != own[k].shape]
+        if wrong or len(last) != len(own):
+            name = wrong[0] if wrong else next(k for k in last if k not in own)
+            raise InputError(f"{path}: train_model['{name}'] is {_describe(last.get(name))}; the model's weight of "
+                             "that name has another shape or none, so the last step's weights are not this model's.")
     params = list(simulator.parameters())
     indices = [i for group in ckpt["optimizer"]["param_groups"] for i in group["params"]]
     if sorted(indices) != list(range(len(params))):
