@@ -90,6 +90,17 @@ def test_the_weight_average_is_the_saved_model_and_resumes_exactly(tmp_path):
     assert any(not torch.equal(a, w) for a, w in zip(whole.parameters(), plain.parameters()))
 
 
+def test_a_compiled_network_trains_as_the_eager_one_and_saves_the_same_checkpoint(tmp_path):
+    data = write_dataset(tmp_path / "data")
+    eager = train(config(data, tmp_path / "eager", steps=3))
+    train(config(data, tmp_path / "compiled", steps=3, compile=True))
+    assert np.allclose(losses(tmp_path / "compiled"), losses(tmp_path / "eager"), rtol=1e-4)
+    saved = read_checkpoint(tmp_path / "compiled" / "checkpoint.pt")["model"]
+    assert list(saved) == list(eager.state_dict())  # no _orig_mod: any command loads it
+    for name, w in eager.state_dict().items():
+        assert torch.allclose(saved[name], w, atol=1e-6), name
+
+
 def test_resuming_last_step_weights_of_another_shape_is_refused_in_one_sentence(tmp_path):
     data = write_dataset(tmp_path / "data")
     train(config(data, tmp_path / "run", steps=2, ema=0.9))

@@ -119,6 +119,8 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Simu
             meta, simulator.radius, f"measured on {data.path}",
         )
     simulator.to(ctx.device).train()
+    if cfg.compile:  # in place: the module's state_dict keys, and so the checkpoint, stay those of the eager network
+        simulator.network.compile(dynamic=True)
     averaged = _last_step_weights(simulator, state)
     average = WeightAverage(simulator, cfg.ema, averaged) if cfg.ema > 0 else None
     optimizer = torch.optim.Adam(simulator.parameters(), lr=cfg.lr_init)

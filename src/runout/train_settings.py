@@ -49,6 +49,7 @@ class TrainConfig:
     radius: float | None = None  # connectivity radius in m (None: the dataset's default)
     frame_stride: int | None = None  # dataset frames per GNS step (None: 1, or the checkpoint's on --resume / --init)
     pushforward: int = 0  # each step first unrolls n ~ U{0..pushforward} steps without gradient (0: one-step)
+    compile: bool = False  # run the network through torch.compile (1.19x the steps on one CPU thread, docs/training.md)
     ema: float = 0.0  # decay per step of the weight average saved as the model (0: the last step's weights)
 
 
