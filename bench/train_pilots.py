@@ -13,6 +13,10 @@ the last frame) and the mean position MSE over the rollout (m^2), beside the ste
         --pilots ft-stride2 ft-stride1 --minutes 25 --parallel 1 --threads 1 --valid 6
 
 Results go to OUT/pilots.json and a Markdown table on stdout (pasted into docs/training.md).
+
+Stopping it (SIGTERM or Ctrl-C) while pilots train asks every `runout train` it started to
+stop after its current step (each saves its checkpoint, so `--resume` continues it) and exits
+without evaluating: no training process is left behind, none evaluates unasked.
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -92,6 +97,19 @@ def run_pilots(names: list[str], data: Path, out: Path, minutes: float, parallel
     env = {**os.environ, "OMP_NUM_THREADS": str(threads), "MKL_NUM_THREADS": str(threads)}
     queue = list(names)
     running: list[tuple[str, subprocess.Popen]] = []
+
+    # the pilots run in sessions of their own, so a terminal's Ctrl-C reaches only this runner, which
+    # passes one SIGINT on (a second would stop a pilot at once, unsaved)
+    def stop(signum, frame):  # every pilot saves after its step and stops; then exit unevaluated
+        for name, proc in running:
+            proc.send_signal(signal.SIGINT)
+        for name, proc in running:
+            proc.wait()
+            print(f"stopped {name} (exit {proc.returncode}); its checkpoint resumes", flush=True)
+        raise SystemExit(128 + signum)
+
+    signal.signal(signal.SIGTERM, stop)
+    signal.signal(signal.SIGINT, stop)
     while queue or running:
         while queue and len(running) < parallel:
             name = queue.pop(0)
@@ -104,7 +122,8 @@ def run_pilots(names: list[str], data: Path, out: Path, minutes: float, parallel
             out.mkdir(parents=True, exist_ok=True)
             log = open(out / f"{name}.log", "a")  # beside the run folder, which runout owns
             print(f"start {name}: {' '.join(cmd[2:])}", flush=True)
-            running.append((name, subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT)))
+            running.append((name, subprocess.Popen(cmd, env=env, stdout=log, stderr=subprocess.STDOUT,
+                                                       start_new_session=True)))
         time.sleep(5)
         for item in list(running):
             if item[1].poll() is not None:
