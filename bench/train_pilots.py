@@ -71,6 +71,10 @@ PRESETS: dict[str, list[str]] = {
                                                "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
                                                "--onset-share", "0.25", "--onset-frames", "20", "--ema", "0.999"]
        for n in ("0.01", "0.03")},
+    # the same from a checkpoint, annealed: a quarter of the learning rate
+    "x-noise0.01-exact-pf2-onset0.25-ema-lr1e-4": [*W64, "--lr", "1e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
+                                                    "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
+                                                    "--onset-share", "0.25", "--onset-frames", "20", "--ema", "0.999"],
     **{f"r-noise{n}-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--pushforward", k]
        for n in ("0.1", "0.3", "0.6") for k in ("1", "2")},
     **{f"r-noise{n}-mw{w}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--moving-weight", w]
@@ -131,16 +135,18 @@ def run_pilots(names: list[str], data: Path, out: Path, minutes: float, parallel
                 running.remove(item)
 
 
-def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int | None = None) -> list[dict]:
+def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int | None = None,
+             last_step: bool = False) -> list[dict]:
     """Roll every pilot's last checkpoint out from rest (frame 0 held, as users' scenes start)
     over all frames of the first n_valid validation scenes, and score it against the MPM beside
-    a prediction in which nothing moves (runout.evaluate.heldout)."""
+    a prediction in which nothing moves (runout.evaluate.heldout). last_step: the checkpoint's
+    last-step weights (train_model, kept by --ema runs) instead of its model, the average."""
     import numpy as np
     import torch
 
     from runout.dataset import split_trajectories
     from runout.evaluate.heldout import rollout_all, score, standing_still
-    from runout.gns.checkpoint import load_simulator, read_checkpoint
+    from runout.gns.checkpoint import load_simulator, read_checkpoint, simulator_from_checkpoint
 
     torch.set_num_threads(threads or os.cpu_count() or 1)
     truths = list(split_trajectories(data, "valid", n_valid))
@@ -149,8 +155,12 @@ def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int
         path = out / name / "checkpoint.pt"
         if not path.exists():
             continue
-        step = int(read_checkpoint(path)["step"])
-        simulator = load_simulator(path)
+        ckpt = read_checkpoint(path)
+        step = int(ckpt["step"])
+        if last_step and "train_model" not in ckpt:
+            continue
+        simulator = (simulator_from_checkpoint({**ckpt, "model": ckpt["train_model"]}, path).eval() if last_step
+                     else load_simulator(path))
         if not rows:
             rows.append({"pilot": "standing still", **score([standing_still(t) for t in truths], truths, simulator.point_spacing)})
         log = [json.loads(ln) for ln in (out / name / "log.jsonl").read_text().splitlines() if ln]
@@ -158,7 +168,7 @@ def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int
         t0 = time.perf_counter()
         predicted = rollout_all(simulator, truths)
         rows.append({
-            "pilot": name, "options": " ".join(PRESETS[name]), "steps": step, "train_wall_s": wall,
+            "pilot": name + (" (last step)" if last_step else ""), "options": " ".join(PRESETS[name]), "steps": step, "train_wall_s": wall,
             "s_per_step": wall / max(step, 1),
             "final_loss": float(np.mean([r["loss"] for r in log if "loss" in r][-20:])),
             **score(predicted, truths, simulator.point_spacing), "rollout_s": time.perf_counter() - t0,
@@ -190,10 +200,12 @@ def main() -> None:
     ap.add_argument("--eval-threads", type=int, default=None, help="threads of the evaluation rollouts (default: all cores)")
     ap.add_argument("--init", type=Path, default=None, help="start every pilot from this checkpoint (the ft-* presets)")
     ap.add_argument("--evaluate-only", action="store_true")
+    ap.add_argument("--last-step", action="store_true",
+                    help="evaluate the checkpoints' last-step weights (train_model of --ema runs) instead of the average")
     args = ap.parse_args()
     if not args.evaluate_only:
         run_pilots(args.pilots, args.data, args.out, args.minutes, args.parallel, args.threads, args.init)
-    rows = evaluate(args.pilots, args.data, args.out, args.valid, args.eval_threads)
+    rows = evaluate(args.pilots, args.data, args.out, args.valid, args.eval_threads, args.last_step)
     print(table(rows))
     # merged by pilot name, so pilots evaluated in separate runs (or processes) keep each other's rows
     path = args.out / "pilots.json"
