@@ -71,6 +71,12 @@ PRESETS: dict[str, list[str]] = {
                                                "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
                                                "--onset-share", "0.25", "--onset-frames", "20", "--ema", "0.999"]
        for n in ("0.01", "0.03")},
+    # the recipe from scratch at frame stride 2 and 4 (one GNS step spans k frames: k times fewer rollout steps)
+    **{f"x-noise0.01-exact-pf2-onset0.25-ema-stride{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise",
+                                                          "0.01", "--exact-rest", "--pushforward", "2",
+                                                          "--no-checkpoint-layers", "--onset-share", "0.25",
+                                                          "--onset-frames", "20", "--ema", "0.999", "--frame-stride", k]
+       for k in ("2", "4")},
     # the same from a checkpoint, annealed: a quarter of the learning rate
     "x-noise0.01-exact-pf2-onset0.25-ema-lr1e-4": [*W64, "--lr", "1e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
                                                     "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
