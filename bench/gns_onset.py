@@ -39,16 +39,6 @@ def spread(model: np.ndarray, truth: np.ndarray) -> tuple[float, float]:
     return corr, slope
 
 
-def last_step(path: Path):
-    """The simulator of a checkpoint's last-step weights (train_model, saved by --ema runs), or None."""
-    from runout.gns.checkpoint import read_checkpoint, simulator_from_checkpoint
-
-    ckpt = read_checkpoint(path)
-    if "train_model" not in ckpt:
-        return None
-    return simulator_from_checkpoint({**ckpt, "model": ckpt["train_model"]}, path).eval()
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("models", type=Path, nargs="+")
@@ -62,7 +52,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     from runout.dataset import split_trajectories
-    from runout.gns.checkpoint import load_simulator
+    from runout.gns.checkpoint import load_last_step, load_simulator
     from runout.gns.rollout import rollout_trajectory
 
     at = sorted(int(f) for f in args.at.split(","))
@@ -74,7 +64,8 @@ def main() -> None:
     print("MPM " + " | ".join(f"frame {f}: {np.round(mpm[:, j], 2).tolist()}" for j, f in enumerate(at)))
     models = [(str(path), load_simulator(path)) for path in args.models]
     if args.last_step:
-        models += [(f"{path} (last step's weights)", last_step(path)) for path in args.models if last_step(path) is not None]
+        last = [(f"{path} (last step's weights)", load_last_step(path)) for path in args.models]
+        models += [(name, simulator) for name, simulator in last if simulator is not None]
     for name, simulator in models:
         gns = np.array([[displacement(r.positions, f // simulator.frame_stride, t.soil) for f in at]
                         for t in truths

@@ -152,7 +152,7 @@ def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int
 
     from runout.dataset import split_trajectories
     from runout.evaluate.heldout import rollout_all, score, standing_still
-    from runout.gns.checkpoint import load_simulator, read_checkpoint, simulator_from_checkpoint
+    from runout.gns.checkpoint import load_last_step, load_simulator, read_checkpoint
 
     torch.set_num_threads(threads or os.cpu_count() or 1)
     truths = list(split_trajectories(data, "valid", n_valid))
@@ -161,12 +161,10 @@ def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int
         path = out / name / "checkpoint.pt"
         if not path.exists():
             continue
-        ckpt = read_checkpoint(path)
-        step = int(ckpt["step"])
-        if last_step and "train_model" not in ckpt:
+        step = int(read_checkpoint(path)["step"])
+        simulator = load_last_step(path) if last_step else load_simulator(path)
+        if simulator is None:  # --last-step, and the run kept no average
             continue
-        simulator = (simulator_from_checkpoint({**ckpt, "model": ckpt["train_model"]}, path).eval() if last_step
-                     else load_simulator(path))
         if not rows:
             rows.append({"pilot": "standing still", **score([standing_still(t) for t in truths], truths, simulator.point_spacing)})
         log = [json.loads(ln) for ln in (out / name / "log.jsonl").read_text().splitlines() if ln]

@@ -9,7 +9,7 @@ import torch
 import torch.multiprocessing as mp
 
 from runout.errors import InputError
-from runout.gns.checkpoint import load_simulator, read_checkpoint
+from runout.gns.checkpoint import load_last_step, load_simulator, read_checkpoint
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.simulator import NetworkConfig
 from runout.metrics import compare, final_displacement
@@ -99,6 +99,16 @@ def test_a_compiled_network_trains_as_the_eager_one_and_saves_the_same_checkpoin
     assert list(saved) == list(eager.state_dict())  # no _orig_mod: any command loads it
     for name, w in eager.state_dict().items():
         assert torch.allclose(saved[name], w, atol=1e-6), name
+
+
+def test_the_last_step_weights_load_beside_the_average(tmp_path):
+    data = write_dataset(tmp_path / "data")
+    train(config(data, tmp_path / "avg", steps=3, ema=0.9))
+    train(config(data, tmp_path / "plain", steps=3))
+    last = load_last_step(tmp_path / "avg" / "checkpoint.pt")
+    saved = read_checkpoint(tmp_path / "avg" / "checkpoint.pt")["train_model"]
+    assert all(torch.equal(w, saved[name]) for name, w in last.state_dict().items())
+    assert load_last_step(tmp_path / "plain" / "checkpoint.pt") is None
 
 
 def test_resuming_last_step_weights_of_another_shape_is_refused_in_one_sentence(tmp_path):

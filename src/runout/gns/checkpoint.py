@@ -289,6 +289,15 @@ def load_simulator(path: str | Path, device: str | torch.device = "cpu") -> Simu
     return simulator.to(device).eval()
 
 
+def load_last_step(path: str | Path, device: str | torch.device = "cpu") -> Simulator | None:
+    """The simulator of a checkpoint's last-step weights (train_model, kept beside the weight
+    average by `runout train --ema`), on `device`, in eval mode; None when it has none."""
+    ckpt = read_checkpoint(path)
+    if "train_model" not in ckpt:
+        return None
+    return simulator_from_checkpoint({**ckpt, "model": ckpt["train_model"]}, path).to(device).eval()
+
+
 def check_schema(simulator: Simulator, data_schema: FeatureSchema, model_source, data_source) -> None:
     """Raise InputError naming the first difference between a model's and the data's schema."""
     diff = simulator.schema.difference(data_schema)
