@@ -4,11 +4,12 @@ runout.mpm.mohr_coulomb, one thread per point or per grid node, on CPU or CUDA f
     step = WarpSubstep(batch.grid, batch.pts)   # once per batch
     step(pts, grid, dt, flip, damping)           # in place; what solver.substep does
 
-A substep is five launches: clear_grid; p2g (mass, APIC momentum and the MLS internal-force
+A substep is six launches: clear_grid; p2g (mass, APIC momentum and the MLS internal-force
 impulse, scattered with atomic adds); grid_update (gravity, local damping, then each node's
 walls and fixed-ground contact in the order of grid.constraints, then the stuck nodes); g2p
-(velocity and its gradient C, the FLIP share, the move and clamp, and the scatter of m tr(C) for
-the nodal volumetric average); update_points (the averaged volumetric rate weighted by the
+(velocity and its gradient C, the FLIP blend with each point's share made once per dt, the
+move and clamp, and the scatter of m tr(C) for the nodal volumetric average); nodal_rate (that
+sum over the node's mass); update_points (the averaged volumetric rate weighted by the
 mobilised strength, Jaumann rotation, elastic trial, Mohr-Coulomb return with tension cut-off,
 volume, dilute and loose points). Same formulas as the torch solver, in float64 as its default;
 results agree to rounding (the sums run in another order). The kernels read and write the
@@ -68,7 +69,6 @@ class PointArrays:
     upper: wp.array(dtype=wp.vec2d)  # domain size, m
     node_base: wp.array(dtype=wp.int32)  # first grid node of the point's scene
     ny: wp.array(dtype=wp.int32)  # nodes per grid column of the point's scene
-    wave_rate: wp.array(dtype=Real)  # c_p / dx, 1/s
     last_stress_step: wp.array(dtype=wp.int32)  # relaxation: the point's stress is updated while k < this
 
 
@@ -110,7 +110,8 @@ class NodeArrays:
     mass: wp.array(dtype=Real)
     momentum: wp.array(dtype=wp.vec2d)
     impulse: wp.array(dtype=wp.vec2d)  # internal-force impulse dt f_int
-    volumetric: wp.array(dtype=Real)  # sum of m tr(C) w, then divided by mass where read
+    volumetric: wp.array(dtype=Real)  # sum of m tr(C) w
+    rate: wp.array(dtype=Real)  # volumetric / mass, 1/s (0 on a node without mass): what update_points averages
     velocity: wp.array(dtype=wp.vec2d)
     velocity_before: wp.array(dtype=wp.vec2d)  # transferred momentum only (FLIP)
     rules: wp.array(dtype=wp.int32)  # how many constraints act on the node
@@ -356,8 +357,9 @@ def clamp(a: Real, low: Real, high: Real):
 
 
 @wp.kernel
-def g2p(pts: PointArrays, nodes: NodeArrays, dx: Real, dt: Real, flip: Real, wave: int, out: NewState):
-    """Velocity, APIC C, FLIP blend and the clamped move (solver.g2p); then m tr(C) to the nodes."""
+def g2p(pts: PointArrays, nodes: NodeArrays, dx: Real, dt: Real, flip_share: wp.array(dtype=Real), out: NewState):
+    """Velocity, APIC C, FLIP blend and the clamped move (solver.g2p); then m tr(C) to the nodes.
+    flip_share: each point's FLIP share of this substep (flip_shares)."""
     p = wp.tid()
     first, fx = stencil_origin(pts.x[p], Real(1.0) / dx, pts.node_base[p], pts.ny[p])
     wx = bspline(fx[0])
@@ -374,9 +376,7 @@ def g2p(pts: PointArrays, nodes: NodeArrays, dx: Real, dt: Real, flip: Real, wav
             v_old += w * nodes.velocity_before[node]
             moment += wp.outer(wv, wp.vec2d(NODE[a] * dx, NODE[b] * dx))
     C = (Real(4.0) / (dx * dx)) * (moment - wp.outer(v_pic, fx * dx))
-    share = flip
-    if wave != 0:
-        share = wp.exp(-dt * pts.wave_rate[p])  # FLIP_WAVE: a fixed decay rate in time
+    share = flip_share[p]
     out.v[p] = share * (pts.v[p] + v_pic - v_old) + (Real(1.0) - share) * v_pic
     out.C_grid[p] = C
     eps = Real(1e-4) * dx
@@ -387,6 +387,18 @@ def g2p(pts: PointArrays, nodes: NodeArrays, dx: Real, dt: Real, flip: Real, wav
     for a in range(3):
         for b in range(3):
             wp.atomic_add(nodes.volumetric, first + a * pts.ny[p] + b, m_tr * (wx[a] * wy[b]))
+
+
+@wp.kernel
+def nodal_rate(nodes: NodeArrays):
+    """Each node's volumetric rate, sum m tr(C) w / sum m w, once per node rather than once per
+    point and stencil node in update_points."""
+    n = wp.tid()
+    m = nodes.mass[n]
+    r = Real(0.0)
+    if m > Real(0.0):
+        r = nodes.volumetric[n] / m
+    nodes.rate[n] = r
 
 
 @wp.kernel
@@ -402,10 +414,7 @@ def update_points(pts: PointArrays, mat: MaterialConstants, nodes: NodeArrays, d
     tr_avg = Real(0.0)  # the volumetric rate averaged through the nodes, 1/s
     for a in range(3):
         for b in range(3):
-            node = first + a * pts.ny[p] + b
-            m = nodes.mass[node]
-            if m > Real(0.0):
-                tr_avg += (wx[a] * wy[b]) * (nodes.volumetric[node] / m)
+            tr_avg += (wx[a] * wy[b]) * nodes.rate[first + a * pts.ny[p] + b]
     C = out.C_grid[p]
     s = pts.stress[p]
     shift = Real(0.5) * mobilised(s, mat, p) * (tr_avg - (C[0, 0] + C[1, 1]))
@@ -470,6 +479,8 @@ class WarpSubstep:
         self._ints = {name: getattr(pts, name).to(torch.int32).contiguous() for name in ("node_base", "ny")}
         self._last_step = torch.full((self.n_points,), FREE, dtype=torch.int32, device=pts.x.device)
         self._x_next = torch.empty_like(pts.x)
+        self._wave_rate = pts.wave_rate.contiguous()
+        self._shares: dict[tuple, torch.Tensor] = {}  # FLIP shares by (dt, flip)
         self._bound: tuple | None = None
         self.arrays = PointArrays()
         self.new = NewState()
@@ -520,24 +531,26 @@ class WarpSubstep:
         if self.n_points == 0:
             return
         arrays = self._bind(pts)
-        view = (arrays, self.new, self.mat, self.nodes, self.nodes)
+        view = (arrays, self.new, self.mat, self.nodes, self.nodes, 0, self.n_points)
         self._replay(self._plan(view, dx, dt, flip, damping, hold), step)
 
     def _plan(self, view: tuple, dx: float, dt: float, flip, damping: float, hold: int) -> list:
         """One substep of the points in view's arrays on its own nodes (the nodes of their scenes,
-        a view of all nodes, which the point kernels index globally): the five launches, packed
+        a view of all nodes, which the point kernels index globally): the six launches, packed
         once (wp.Launch) for these arrays and settings and replayed every substep."""
         key = (id(view[0]), dx, dt, str(flip), damping, hold)
         if key not in self._plans:
-            arrays, new, mat, nodes, own_nodes = view
+            arrays, new, mat, nodes, own_nodes, p0, p1 = view
             n, p = own_nodes.mass.shape[0], arrays.x.shape[0]
-            wave = int(flip == FLIP_WAVE)
-            share = 0.0 if wave else float(flip)
+            if (dt, str(flip)) not in self._shares:  # kept alive here: the launches hold only a view
+                self._shares[dt, str(flip)] = flip_shares(self._wave_rate, dt, flip)
+            share = wp.from_torch(self._shares[dt, str(flip)][p0:p1])
             self._plans[key] = [
                 self._record(clear_grid, n, own_nodes),
                 self._record(p2g, p, arrays, nodes, dx, dt * (4.0 / dx**2)),
                 self._record(grid_update, n, own_nodes, GRAVITY * dt, float(damping)),
-                self._record(g2p, p, arrays, nodes, dx, dt, share, wave, new),
+                self._record(g2p, p, arrays, nodes, dx, dt, share, new),
+                self._record(nodal_rate, n, own_nodes),
                 self._record(update_points, p, arrays, mat, nodes, dx, dt, 0, hold, new),
             ]
         return self._plans[key]
@@ -572,7 +585,8 @@ class WarpSubstep:
         a.upper = wp.from_torch(pts.upper.contiguous(), dtype=wp.vec2d)
         a.node_base = wp.from_torch(self._ints["node_base"])
         a.ny = wp.from_torch(self._ints["ny"])
-        a.wave_rate = wp.from_torch(pts.wave_rate.contiguous())
+        self._wave_rate = pts.wave_rate.contiguous()
+        self._shares = {}
         a.last_stress_step = wp.from_torch(self._last_step)
         new = self.new  # in place: the new state overwrites the old, point by point
         new.x_moved = wp.from_torch(self._x_next, dtype=wp.vec2d)
@@ -585,17 +599,25 @@ class WarpSubstep:
 
     def _group_views(self) -> list[tuple]:
         """Per scene group: its points' arrays, new state and constants, all nodes, and its own
-        nodes, as Warp views (no copies) of the bound arrays."""
+        nodes, as Warp views (no copies) of the bound arrays; then its points' range."""
         if not self._views:
             for p0, p1, n0, n1 in self.groups:
                 self._views.append((sliced(self.arrays, PointArrays(), p0, p1), sliced(self.new, NewState(), p0, p1),
                                     sliced(self.mat, MaterialConstants(), p0, p1), self.nodes,
-                                    sliced(self.nodes, NodeArrays(), n0, n1)))
+                                    sliced(self.nodes, NodeArrays(), n0, n1), p0, p1))
         return self._views
 
     def __del__(self):
         if getattr(self, "_pool", None) is not None:
             self._pool.shutdown(wait=False)
+
+
+def flip_shares(wave_rate: torch.Tensor, dt: float, flip: float | str) -> torch.Tensor:
+    """Each point's FLIP share of a substep of dt seconds (solver.flip_share, the same torch.exp),
+    made once per dt rather than in g2p: the exponential there was about a third of g2p's time."""
+    if flip == FLIP_WAVE:
+        return torch.exp(-dt * wave_rate).contiguous()
+    return torch.full_like(wave_rate, float(flip))
 
 
 def sliced(struct, out, start: int, stop: int):
@@ -659,7 +681,7 @@ def with_transfers(rules: NodeArrays, requires_grad: bool) -> NodeArrays:
     out = NodeArrays()
     out.rules, out.normal, out.mu, out.stuck = rules.rules, rules.normal, rules.mu, rules.stuck
     size, device = rules.rules.shape[0], rules.rules.device
-    for name, dtype in (("mass", Real), ("volumetric", Real), ("momentum", wp.vec2d), ("impulse", wp.vec2d),
+    for name, dtype in (("mass", Real), ("volumetric", Real), ("rate", Real), ("momentum", wp.vec2d), ("impulse", wp.vec2d),
                         ("velocity", wp.vec2d), ("velocity_before", wp.vec2d)):
         setattr(out, name, wp.zeros(size, dtype=dtype, device=device, requires_grad=requires_grad))
     return out

@@ -27,10 +27,9 @@ from dataclasses import dataclass
 import torch
 import warp as wp
 
-from runout.defaults import FLIP_WAVE
 from runout.mpm.geostatic import GRAVITY
 from runout.mpm.kernels import (
-    FREE, UPDATE_STEP, MaterialConstants, NewState, NodeArrays, PointArrays, Real, g2p, grid_update, node_arrays, p2g,
+    FREE, UPDATE_STEP, flip_shares, MaterialConstants, NewState, NodeArrays, PointArrays, Real, g2p, grid_update, nodal_rate, node_arrays, p2g,
     update_points, with_transfers,
 )
 from runout.mpm.mohr_coulomb import MaterialArrays
@@ -40,7 +39,7 @@ STATE = ("x", "v", "C", "stress", "volume")
 STRENGTHS = ("sin_phi", "cohesion", "tension", "c_cos", "corner3")  # the MaterialConstants that follow phi and c
 _TYPES = {"x": wp.vec2d, "v": wp.vec2d, "C": wp.mat22d, "stress": wp.vec4d, "volume": Real}
 _SCATTERED = ("mass", "momentum", "impulse", "volumetric")  # node arrays p2g and g2p add into
-_TRANSFERS = _SCATTERED + ("velocity", "velocity_before")
+_TRANSFERS = _SCATTERED + ("velocity", "velocity_before", "rate")
 
 
 def strength_tensors(mat: MaterialArrays) -> tuple[torch.Tensor, ...]:
@@ -93,9 +92,10 @@ class WarpRun:
         self.dx, self.n_points, self.n_nodes, self.longest = batch.grid.dx, len(pts.x), batch.grid.size, longest
         self.last_step = wp.full(self.n_points, FREE, dtype=wp.int32, device=self.device)
         self.mat = self._materials(pts.mat)
+        self.wave_rate = pts.wave_rate.detach().to(torch.float64).contiguous().clone()  # c_p / dx, 1/s (flip_shares)
         rules = node_arrays(batch.grid, self.device)
         constants = {name: self._copy(getattr(pts, name), dtype) for name, dtype in (
-            ("rest_volume", Real), ("mass", Real), ("upper", wp.vec2d), ("wave_rate", Real),
+            ("rest_volume", Real), ("mass", Real), ("upper", wp.vec2d),
             ("node_base", wp.int32), ("ny", wp.int32))}
         threads = threads if threads is not None else torch.get_num_threads()
         sets = 2 if self.device.is_cpu and threads > 1 else 1
@@ -205,10 +205,12 @@ class _ArraySet:
         self.moves = [{"x_moved": run._zeros(wp.vec2d), "C_grid": run._zeros(wp.mat22d)} for _ in range(longest)]
         self.inputs = [self._point_arrays(self.states[k], constants) for k in range(longest + 1)]
         self.outputs = [self._new_state(self.states[k + 1], self.moves[k]) for k in range(longest)]
-        self._forward: list[list[wp.Launch]] = []  # [k] substep k's four launches
+        self._forward: list[list[wp.Launch]] = []  # [k] substep k's five launches
         self._backward: list[list[wp.Launch]] = []  # [k] their adjoints, in reverse order
 
     def record(self, schedule: Schedule) -> None:
+        self._shares = flip_shares(self.run.wave_rate, schedule.dt, schedule.flip)  # kept alive: the launches view it
+        self.shares = wp.from_torch(self._shares)
         self._forward = [self._record(schedule, k, adjoint=False) for k in range(self.run.longest)]
         self._backward = [self._record(schedule, k, adjoint=True)[::-1] for k in range(self.run.longest)]
 
@@ -248,23 +250,22 @@ class _ArraySet:
             launch.launch()
 
     def _record(self, schedule: Schedule, k: int, adjoint: bool) -> list[wp.Launch]:
-        """Substep k's four launches (or their adjoints), packed once for replaying."""
+        """Substep k's five launches (or their adjoints), packed once for replaying."""
         return [wp.launch(kernel, dim=dim, inputs=inputs, adj_inputs=[_empty(a) for a in inputs] if adjoint else [],
                           adjoint=adjoint, device=self.run.device, record_cmd=True)
                 for kernel, dim, inputs in self._launches(schedule, k)]
 
     def _launches(self, schedule: Schedule, k: int) -> list[tuple]:
-        """The four kernels of a substep of the schedule from self.states[k] into self.states[k + 1],
+        """The five kernels of a substep of the schedule from self.states[k] into self.states[k + 1],
         as (kernel, threads, inputs), in order; update_points' step is set when replayed."""
         run = self.run
         pts, nodes, out, dx, dt = self.inputs[k], self.nodes[k], self.outputs[k], run.dx, schedule.dt
-        wave = int(schedule.flip == FLIP_WAVE)
-        share = 0.0 if wave else float(schedule.flip)
         p, g = run.n_points, run.n_nodes
         return [
             (p2g, p, [pts, nodes, dx, dt * (4.0 / dx**2)]),
             (grid_update, g, [nodes, GRAVITY * dt, float(schedule.damping)]),
-            (g2p, p, [pts, nodes, dx, dt, share, wave, out]),
+            (g2p, p, [pts, nodes, dx, dt, self.shares, out]),
+            (nodal_rate, g, [nodes]),
             (update_points, p, [pts, run.mat, nodes, dx, dt, 0, int(schedule.hold), out]),
         ]
 
@@ -285,8 +286,9 @@ class _ArraySet:
 
 def _empty(argument):
     """An adjoint launch's argument for `argument`: a struct with no arrays (Warp's adjoint code
-    then uses each array's own .grad), nothing for a number."""
-    return None if isinstance(argument, (int, float)) else type(argument)()
+    then uses each array's own .grad), nothing for a number or a lone array (the FLIP shares,
+    constants)."""
+    return None if isinstance(argument, (int, float, wp.array)) else type(argument)()
 
 
 class _Substeps(torch.autograd.Function):
