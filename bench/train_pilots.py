@@ -127,7 +127,7 @@ def run_pilots(names: list[str], data: Path, out: Path, minutes: float, parallel
             resume = ["--resume"] if (run / "checkpoint.pt").exists() else []
             start = ["--init", str(init)] if init is not None and not resume else []
             cmd = [sys.executable, "-m", "runout", "train", "--data", str(data), "--out", str(run),
-                   "--max-hours", f"{minutes / 60:.6f}", "--valid-every", "0", "--save-every", "500",
+                   "--max-hours", f"{minutes / 60:.6f}", "--valid-every", "0", "--save-every", "500", "--keep-every", "2000",
                    "--log-every", "50", *PRESETS[name], *start, *resume]
             out.mkdir(parents=True, exist_ok=True)
             log = open(out / f"{name}.log", "a")  # beside the run folder, which runout owns

@@ -90,6 +90,22 @@ def test_the_weight_average_is_the_saved_model_and_resumes_exactly(tmp_path):
     assert any(not torch.equal(a, w) for a, w in zip(whole.parameters(), plain.parameters()))
 
 
+def test_snapshots_keep_the_checkpoint_of_every_nth_step_also_across_a_resume(tmp_path):
+    """--keep-every N: snapshots/step-K.pt is the checkpoint as saved at step K, for K = N, 2N, ..."""
+    data = write_dataset(tmp_path / "data")
+    run = tmp_path / "run"
+    train(config(data, run, steps=5, save_every=3, keep_every=4))  # a snapshot also saves the checkpoint
+    train(config(data, run, steps=9, save_every=3, keep_every=4, resume=True))
+    assert sorted(p.name for p in (run / "snapshots").iterdir()) == ["step-4.pt", "step-8.pt"]
+    whole = tmp_path / "whole"
+    train(config(data, whole, steps=8, save_every=4))
+    kept, last = read_checkpoint(run / "snapshots" / "step-8.pt"), read_checkpoint(whole / "checkpoint.pt")
+    assert kept["step"] == 8 and read_checkpoint(run / "snapshots" / "step-4.pt")["step"] == 4
+    for name, w in last["model"].items():
+        assert torch.equal(kept["model"][name], w), name  # the resumed run's step 8 is the unbroken run's
+    assert read_checkpoint(run / "checkpoint.pt")["step"] == 9
+
+
 def test_a_compiled_network_trains_as_the_eager_one_and_saves_the_same_checkpoint(tmp_path):
     data = write_dataset(tmp_path / "data")
     eager = train(config(data, tmp_path / "eager", steps=3))

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import threading
 import time
@@ -56,6 +57,7 @@ from runout.train_settings import (  # noqa: F401  (the settings, re-exported)
 CHECKPOINT = "checkpoint.pt"
 BEST = "best.pt"
 LOG = "log.jsonl"
+SNAPSHOTS = "snapshots"  # --keep-every: copies of the checkpoint, step-<N>.pt
 MOVING_SPEED = 0.25  # m/s: a point faster than this over its target step is moving (0.0094 m per 1-frame step)
 
 
@@ -257,9 +259,19 @@ class Trainer:
 
     def save(self) -> None:
         if self.ctx.writer:
-            _save(Path(self.cfg.out) / CHECKPOINT, self.simulator, self.optimizer, self.done, self.cfg, self.best,
-                  self.average)
+            path = _save(Path(self.cfg.out) / CHECKPOINT, self.simulator, self.optimizer, self.done, self.cfg,
+                         self.best, self.average)
+            if self.cfg.keep_every and self.done % self.cfg.keep_every == 0:
+                keep(path, Path(self.cfg.out) / SNAPSHOTS / f"step-{self.done}.pt")
         self.saved_at = self.done
+
+
+def keep(checkpoint: Path, snapshot: Path) -> None:
+    """A copy of the checkpoint just written, itself written atomically (copy, then rename)."""
+    snapshot.parent.mkdir(exist_ok=True)
+    tmp = snapshot.with_name(snapshot.name + ".tmp")
+    shutil.copyfile(checkpoint, tmp)
+    os.replace(tmp, snapshot)
 
 
 def log_losses(trainer: Trainer) -> None:
@@ -279,8 +291,9 @@ def validate(trainer: Trainer) -> None:
 
 
 def save(trainer: Trainer) -> None:
-    """Every save_every steps and at the last, the checkpoint (written atomically)."""
-    if trainer.due(trainer.cfg.save_every):
+    """Every save_every steps and at the last, the checkpoint (written atomically); also every
+    keep_every steps, which keeps a copy of it (Trainer.save)."""
+    if trainer.due(trainer.cfg.save_every) or trainer.due(trainer.cfg.keep_every):
         trainer.save()
 
 
@@ -480,10 +493,10 @@ def _statistics(meta: dict, data: Simulations, stride: int) -> dict:
 
 
 def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: float,
-          average: WeightAverage | None = None) -> None:
+          average: WeightAverage | None = None) -> Path:
     train_settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
     weights = {"model": average.state_dict(simulator), "train_model": simulator.state_dict()} if average else {}
-    save_checkpoint(
+    return save_checkpoint(
         path, simulator, optimizer=optimizer.state_dict(), step=step, train=train_settings,
         rng={"seed": cfg.seed, "torch": torch.get_rng_state()}, best_valid=best, **weights,
     )

@@ -38,6 +38,7 @@ class TrainConfig:
     init: Path | None = None  # fine-tune from this checkpoint (widening material inputs if needed)
     network: NetworkConfig = field(default_factory=NetworkConfig)
     save_every: int = 1000
+    keep_every: int = 0  # every N steps also keep a copy of the checkpoint in snapshots/ (0: never)
     log_every: int = 100
     valid_every: int = 20_000  # 0: never
     valid_trajectories: int = 1
@@ -68,7 +69,7 @@ SETTING_LIMITS = {
     "lr_decay_steps": Limit(1.0, 1e12), "noise": Limit(0.0, 10.0, " velocity std"),
     "static_tail": Limit(0, 1_000_000, " frames"), "moving_weight": Limit(1.0, 1000.0),
     "onset_share": Limit(0.0, 1.0), "onset_frames": Limit(1, 1_000_000, " frames"),
-    "save_every": Limit(1, 1_000_000_000), "log_every": Limit(1, 1_000_000_000), "valid_every": Limit(0, 1_000_000_000),
+    "save_every": Limit(1, 1_000_000_000), "keep_every": Limit(0, 1_000_000_000), "log_every": Limit(1, 1_000_000_000), "valid_every": Limit(0, 1_000_000_000),
     "valid_trajectories": Limit(1, 10_000), "valid_frames": Limit(0, MAX_FRAMES), "max_hours": Limit(0.0, 1000.0, " h"),
     "radius": Limit(0.1, 1000.0, " m"), "frame_stride": Limit(*SCHEMA_LIMITS["frame_stride"]),
     "pushforward": Limit(*PUSHFORWARD_LIMITS), "ema": Limit(0.0, 0.99999),

@@ -47,6 +47,7 @@ def train(
     hidden: int = typer.Option(NetworkConfig.hidden, "--hidden", help="Units of each hidden MLP layer."),
     message_passing: int = typer.Option(NetworkConfig.message_passing_steps, option_name("message_passing_steps"), help="Processor steps (unshared weights)."),
     save_every: int = typer.Option(TrainConfig.save_every, "--save-every", help="Steps between checkpoints."),
+    keep_every: int = typer.Option(TrainConfig.keep_every, "--keep-every", help="Every N steps also keep a copy of the checkpoint as OUT/snapshots/step-N.pt, to choose one afterwards by rollouts (0: never)."),
     log_every: int = typer.Option(TrainConfig.log_every, "--log-every", help="Steps per log.jsonl line (mean loss)."),
     valid_every: int = typer.Option(TrainConfig.valid_every, "--valid-every", help="Steps between validation rollouts (0: never)."),
     valid_trajectories: int = typer.Option(TrainConfig.valid_trajectories, "--valid-trajectories", help="Validation trajectories rolled out each time."),
@@ -60,7 +61,7 @@ def train(
     the checkpoint of the last whole step (exit 130); --resume continues exactly."""
     from runout import checks
     from runout.outputs import check_folder, claim
-    from runout.train import BEST, CHECKPOINT, LOG, check_settings, train as run_training
+    from runout.train import BEST, CHECKPOINT, LOG, SNAPSHOTS, check_settings, train as run_training
 
     cfg = TrainConfig(
         data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise=noise,
@@ -68,14 +69,14 @@ def train(
         onset_share=onset_share, onset_frames=onset_frames,
         seed=seed, device=device, resume=resume, init=init,
         network=NetworkConfig(latent=latent, hidden=hidden, message_passing_steps=message_passing),
-        save_every=save_every, log_every=log_every, valid_every=valid_every,
+        save_every=save_every, keep_every=keep_every, log_every=log_every, valid_every=valid_every,
         valid_trajectories=valid_trajectories, valid_frames=valid_frames,
         checkpoint_layers=checkpoint_layers, bf16=bf16, lr_decay_steps=lr_decay_steps,
         max_hours=max_hours, radius=radius, frame_stride=frame_stride, pushforward=pushforward, ema=ema, compile=compile_network,
     )
     check_settings(cfg)
     checks.device(device, auto=True)
-    folder = check_folder(out, "train", (CHECKPOINT, BEST, LOG, "tensorboard"), mode="resume", force=force)
+    folder = check_folder(out, "train", (CHECKPOINT, BEST, LOG, SNAPSHOTS, "tensorboard"), mode="resume", force=force)
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun only the writing process prepares it
         claim(folder)
     run_training(cfg)
