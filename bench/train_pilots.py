@@ -77,6 +77,14 @@ PRESETS: dict[str, list[str]] = {
                                                           "--no-checkpoint-layers", "--onset-share", "0.25",
                                                           "--onset-frames", "20", "--ema", "0.999", "--frame-stride", k]
        for k in ("2", "4")},
+    # the recipe with 10 message-passing steps instead of 5: at rest a point's first prediction
+    # sees only its receptive field, 5 x 9.2 m = 46 m at 8 m cells, less than the tallest slopes,
+    # whose height sets whether cohesion holds them (c / gamma H); 10 steps see 92 m
+    **{f"x-noise0.01-exact-pf2-onset0.25-ema{tail}-mp10": [
+        "--latent", "64", "--hidden", "64", "--message-passing-steps", "10", "--bf16", "--lr", "4e-4",
+        "--lr-decay-steps", "200000", "--noise", "0.01", "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
+        "--onset-share", "0.25", "--onset-frames", "20", "--ema", "0.999", *stride]
+       for tail, stride in (("", []), ("-stride2", ["--frame-stride", "2"]), ("-stride4", ["--frame-stride", "4"]))},
     # the same from a checkpoint, annealed: a quarter of the learning rate
     "x-noise0.01-exact-pf2-onset0.25-ema-lr1e-4": [*W64, "--lr", "1e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
                                                     "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
