@@ -43,7 +43,7 @@ wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no device bann
 from runout.defaults import FLIP_WAVE
 from runout.mpm.geostatic import GRAVITY
 from runout.mpm.mohr_coulomb import MaterialArrays
-from runout.mpm.solver import DILUTE, LOOSE, PAD, Grid, Points
+from runout.mpm.solver import DILUTE, LOOSE, PAD, Grid, Points, flip_shares
 
 Real = wp.float64  # every real number of the substep; literals must carry it (Warp does not mix widths)
 NODE = wp.constant(wp.vec3d(0.0, 1.0, 2.0))  # stencil node index a as a real: NODE[a] (Real(a) would retype the loop index)
@@ -610,14 +610,6 @@ class WarpSubstep:
     def __del__(self):
         if getattr(self, "_pool", None) is not None:
             self._pool.shutdown(wait=False)
-
-
-def flip_shares(wave_rate: torch.Tensor, dt: float, flip: float | str) -> torch.Tensor:
-    """Each point's FLIP share of a substep of dt seconds (solver.flip_share, the same torch.exp),
-    made once per dt rather than in g2p: the exponential there was about a third of g2p's time."""
-    if flip == FLIP_WAVE:
-        return torch.exp(-dt * wave_rate).contiguous()
-    return torch.full_like(wave_rate, float(flip))
 
 
 def sliced(struct, out, start: int, stop: int):

@@ -28,8 +28,9 @@ import torch
 import warp as wp
 
 from runout.mpm.geostatic import GRAVITY
+from runout.mpm.solver import flip_shares
 from runout.mpm.kernels import (
-    FREE, UPDATE_STEP, flip_shares, MaterialConstants, NewState, NodeArrays, PointArrays, Real, g2p, grid_update, nodal_rate, node_arrays, p2g,
+    FREE, UPDATE_STEP, MaterialConstants, NewState, NodeArrays, PointArrays, Real, g2p, grid_update, nodal_rate, node_arrays, p2g,
     update_points, with_transfers,
 )
 from runout.mpm.mohr_coulomb import MaterialArrays
