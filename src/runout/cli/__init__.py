@@ -16,11 +16,15 @@ from runout.cli import evaluate_commands  # noqa: F401
 from runout.cli import compare_commands  # noqa: F401
 from runout.cli import validate_commands  # noqa: F401
 from runout.cli.exits import run
+from runout.threads import choose_threads
 
 
 def main(args: list[str] | None = None) -> None:
     """`runout ARGS...` (sys.argv when args is None); returns on success, else exits with
-    the failure's code."""
+    the failure's code. A fresh process (torch not imported yet) computes on the cores other
+    processes leave idle (runout.threads)."""
+    if "torch" not in sys.modules:
+        choose_threads()
     code = run(app, args)
     if code:
         sys.exit(code)
