@@ -28,7 +28,8 @@ def machine() -> tuple[int, float, int]:
     """(usable cores, 1-minute load average, processes runnable now including this one)."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
     try:
-        fields = open("/proc/loadavg").read().split()
+        with open("/proc/loadavg") as f:
+            fields = f.read().split()
         return cores, float(fields[0]), int(fields[3].split("/")[0])
     except (OSError, IndexError, ValueError):  # not Linux: the load average alone
         load = os.getloadavg()[0] if hasattr(os, "getloadavg") else 0.0
