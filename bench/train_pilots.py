@@ -103,6 +103,17 @@ PRESETS: dict[str, list[str]] = {
     "x-noise0.01-exact-pf2-onset0.4f4-ema": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
                                              "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
                                              "--onset-share", "0.4", "--onset-frames", "4", "--ema", "0.999"],
+    # the same with the onset drawn from the first 2 frames half the time: the window at rest is a
+    # quarter of the draws, so that by 12,000 steps it has been seen as often as in the 3,115 steps
+    # at rest alone that taught C the first acceleration (round 9, second candidate)
+    "x-noise0.01-exact-pf2-onset0.5f2-ema": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
+                                             "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
+                                             "--onset-share", "0.5", "--onset-frames", "2", "--ema", "0.999"],
+    # the same with every onset draw at rest: half the windows start at rest (a sixth of all draws
+    # without pushforward), the other half as in every preset (round 9)
+    "x-noise0.01-exact-pf2-onset0.5f1-ema": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
+                                             "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
+                                             "--onset-share", "0.5", "--onset-frames", "1", "--ema", "0.999"],
     **{f"r-noise{n}-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--pushforward", k]
        for n in ("0.1", "0.3", "0.6") for k in ("1", "2")},
     **{f"r-noise{n}-mw{w}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--moving-weight", w]
