@@ -114,6 +114,14 @@ PRESETS: dict[str, list[str]] = {
     "x-noise0.01-exact-pf2-onset0.5f1-ema": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
                                              "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
                                              "--onset-share", "0.5", "--onset-frames", "1", "--ema", "0.999"],
+    # the second phase of the onset-0.4f4 lineage, resumed from its checkpoint (Adam and the lr
+    # schedule go on) with the window at rest a quarter of the draws: the flow first, then the
+    # start, since 3,115 steps at rest alone taught a model that knew the flow its first step
+    # (round 8) while from scratch the start came slowly (round 9)
+    "x-noise0.01-exact-pf2-onset0.4f4-ema-then0.5f2": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise",
+                                                       "0.01", "--exact-rest", "--pushforward", "2",
+                                                       "--no-checkpoint-layers", "--onset-share", "0.5",
+                                                       "--onset-frames", "2", "--ema", "0.999"],
     **{f"r-noise{n}-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--pushforward", k]
        for n in ("0.1", "0.3", "0.6") for k in ("1", "2")},
     **{f"r-noise{n}-mw{w}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--moving-weight", w]
