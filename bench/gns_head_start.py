@@ -17,6 +17,7 @@ that got them right.
 from __future__ import annotations
 
 import argparse
+import sys
 from dataclasses import replace
 from pathlib import Path
 
@@ -36,28 +37,36 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     from runout.dataset import split_trajectories
+    from runout.errors import InputError
     from runout.evaluate.heldout import score, standing_still
     from runout.gns.checkpoint import load_last_step, load_simulator
     from runout.gns.rollout import rollout_trajectory
 
-    simulator = (load_last_step if args.last_step else load_simulator)(args.model)
+    try:
+        simulator = (load_last_step if args.last_step else load_simulator)(args.model)
+        truths = list(split_trajectories(args.data, "valid", args.valid))
+    except InputError as e:
+        print(e, file=sys.stderr)
+        raise SystemExit(2)
     stride, history = simulator.frame_stride, simulator.schema.history
-    truths = list(split_trajectories(args.data, "valid", args.valid))
+    heads = [int(s) for s in args.heads.split(",")]
+    for head in heads:
+        if head and (head < (history - 1) * stride or head % stride):
+            print(f"--heads: {head} must be 0 or a multiple of the frame stride {stride}, at least "
+                  f"{(history - 1) * stride} (the model's window)", file=sys.stderr)
+            raise SystemExit(2)
     spacing = simulator.point_spacing
     print(f"# {args.model}{' (last step)' if args.last_step else ''}: {len(truths)} valid scenes of {args.data}")
     print("| MPM frames given | position error (m) | front error | extent runout error | mean displacement (m) |")
     print("|---|---|---|---|---|")
     still = score([standing_still(t) for t in truths], truths, spacing)
-    for head in (int(s) for s in args.heads.split(",")):
+    for head in heads:
         predicted = []
         for truth in truths:
             if head == 0:
                 predicted.append(rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None))
                 continue
             first = head - (history - 1) * stride  # the window's first frame
-            if first < 0 or head % stride:
-                raise SystemExit(f"--heads: {head} must be a multiple of the frame stride {stride}, "
-                                 f"at least {(history - 1) * stride} (the model's window)")
             later = replace(truth, positions=truth.positions[first:])
             rolled = rollout_trajectory(simulator, later, truth.n_frames - first, stop_speed=None, from_rest=False)
             frames = np.concatenate([truth.positions[:first:stride], rolled.positions])  # rolled: frames first, first + K, ...

@@ -96,32 +96,21 @@ PRESETS: dict[str, list[str]] = {
     "x-noise0.01-exact-pf2-onset0.4f6-ema-lr1e-4": [*W64, "--lr", "1e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
                                                      "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
                                                      "--onset-share", "0.4", "--onset-frames", "6", "--ema", "0.999"],
-    # from scratch with the onset drawn from the first 4 frames (0.4 of the windows: the window at
-    # rest is a tenth of the draws): 1,900 steps on windows at rest alone took C's first
-    # acceleration from slope 0.10 / corr 0.39 to 0.44 / 0.72 on validation scenes (0.51 / 0.76 on
-    # training scenes), so the first step is learnable at 5 message-passing steps (round 8)
-    "x-noise0.01-exact-pf2-onset0.4f4-ema": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
+    # from scratch with the onset drawn more often from the first frames (round 8, round 9):
+    # - onset0.4f4: share 0.4 over 4 frames, the window at rest a tenth of the draws (1,900 steps on
+    #   windows at rest alone took C's first acceleration from slope 0.10 / corr 0.39 to 0.44 / 0.72
+    #   on validation scenes, so the first step is learnable at 5 message-passing steps);
+    # - onset0.5f2: a quarter of the draws, so that by 12,000 steps the window at rest has been seen
+    #   as often as in the 3,115 steps at rest alone that taught C the first acceleration;
+    # - onset0.5f1: every onset draw at rest, half the windows (a sixth without pushforward);
+    # - onset0.4f4-then0.5f2: the second phase of the onset0.4f4 lineage, resumed from its
+    #   checkpoint (Adam and the lr schedule go on) at a quarter: the flow first, then the start,
+    #   since a model that knew the flow learned its first step fast while from scratch it came slowly
+    **{f"x-noise0.01-exact-pf2-onset{name}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
                                              "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
-                                             "--onset-share", "0.4", "--onset-frames", "4", "--ema", "0.999"],
-    # the same with the onset drawn from the first 2 frames half the time: the window at rest is a
-    # quarter of the draws, so that by 12,000 steps it has been seen as often as in the 3,115 steps
-    # at rest alone that taught C the first acceleration (round 9, second candidate)
-    "x-noise0.01-exact-pf2-onset0.5f2-ema": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
-                                             "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
-                                             "--onset-share", "0.5", "--onset-frames", "2", "--ema", "0.999"],
-    # the same with every onset draw at rest: half the windows start at rest (a sixth of all draws
-    # without pushforward), the other half as in every preset (round 9)
-    "x-noise0.01-exact-pf2-onset0.5f1-ema": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", "0.01",
-                                             "--exact-rest", "--pushforward", "2", "--no-checkpoint-layers",
-                                             "--onset-share", "0.5", "--onset-frames", "1", "--ema", "0.999"],
-    # the second phase of the onset-0.4f4 lineage, resumed from its checkpoint (Adam and the lr
-    # schedule go on) with the window at rest a quarter of the draws: the flow first, then the
-    # start, since 3,115 steps at rest alone taught a model that knew the flow its first step
-    # (round 8) while from scratch the start came slowly (round 9)
-    "x-noise0.01-exact-pf2-onset0.4f4-ema-then0.5f2": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise",
-                                                       "0.01", "--exact-rest", "--pushforward", "2",
-                                                       "--no-checkpoint-layers", "--onset-share", "0.5",
-                                                       "--onset-frames", "2", "--ema", "0.999"],
+                                             "--onset-share", share, "--onset-frames", frames, "--ema", "0.999"]
+       for name, share, frames in (("0.4f4-ema", "0.4", "4"), ("0.5f2-ema", "0.5", "2"), ("0.5f1-ema", "0.5", "1"),
+                                   ("0.4f4-ema-then0.5f2", "0.5", "2"))},
     **{f"r-noise{n}-pf{k}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--pushforward", k]
        for n in ("0.1", "0.3", "0.6") for k in ("1", "2")},
     **{f"r-noise{n}-mw{w}": [*W64, "--lr", "4e-4", "--lr-decay-steps", "200000", "--noise", n, "--moving-weight", w]
