@@ -15,6 +15,7 @@ from runout.contract import FeatureSchema
 from runout.gns.simulator import Case, Normalisation, Simulator
 from runout.simfiles import read_metadata, read_simulations
 from runout.train import Context, _generators, _train_step, train, unrolled_steps
+from runout.train_settings import onset_at, parse_onset_schedule
 from test_cli_exits import one_sentence, run
 from test_gns_synthetic import write_dataset
 from test_gns_train import TINY, config, ddp_worker, free_port, losses
@@ -207,3 +208,35 @@ def test_onset_share_draws_windows_from_the_first_frames_of_every_simulation(tmp
     mixed = [t < sims.first_start + 4 for seed in range(4) for t in start_frames(0.5, seed)]
     assert 16 <= sum(mixed) <= 56  # about 32 of 64 (the uniform draws seldom land there: 4 of 35 starts)
     assert len(first) == 4
+
+
+def test_an_onset_schedule_is_the_phases_run_one_after_another(tmp_path):
+    """--onset-schedule "0:0.4:4,6:0.1:2" trains exactly as 6 steps at --onset-share 0.4
+    --onset-frames 4 and then a --resume to step 12 at 0.1 and 2: the recipe's phases
+    (docs/training.md) in one resumable command."""
+    data = write_dataset(tmp_path / "data", frames=40, n_train=3)
+    scheduled = train(config(data, tmp_path / "scheduled", steps=12, pushforward=1,
+                             onset_schedule=parse_onset_schedule("0:0.4:4,6:0.1:2")))
+    train(config(data, tmp_path / "phases", steps=6, pushforward=1, onset_share=0.4, onset_frames=4))
+    phases = train(config(data, tmp_path / "phases", steps=12, pushforward=1, onset_share=0.1, onset_frames=2, resume=True))
+    assert same_weights(scheduled, phases) and log_lines(tmp_path / "scheduled") == log_lines(tmp_path / "phases")
+    uniform = train(config(data, tmp_path / "uniform", steps=12, pushforward=1))
+    assert not same_weights(scheduled, uniform)  # the schedule did draw other windows
+
+
+def test_onset_at_follows_the_last_entry_begun():
+    cfg = config("d", "o", onset_share=0.2, onset_frames=7, onset_schedule=parse_onset_schedule("10:0.4:4, 20:0:2"))
+    assert [onset_at(cfg, s) for s in (0, 9, 10, 19, 20, 10**6)] == [(0.2, 7), (0.2, 7), (0.4, 4), (0.4, 4), (0.0, 2), (0.0, 2)]
+    assert parse_onset_schedule("") == ()
+
+
+@pytest.mark.parametrize("value, words", [
+    ("0:0.4", "--onset-schedule: the entry '0:0.4' is not STEP:SHARE:FRAMES"),
+    ("0:1.5:4", "--onset-schedule share = 1.5 is outside the allowed range [0, 1]"),
+    ("0:0.4:4,0:0.1:4", "--onset-schedule: the step 0 of '0:0.1:4' must be after the step 0"),
+    ("0:0.4:0", "--onset-schedule frames = 0 is outside the allowed range [1, 1e+06] frames"),
+])
+def test_a_bad_onset_schedule_is_exit_2_before_any_work(tmp_path, capsys, value, words):
+    code, err = run(["train", "--data", tmp_path / "none", "--out", tmp_path / "run", "--onset-schedule", value], capsys)
+    assert code == 2 and words in err and one_sentence(err)
+    assert not (tmp_path / "run").exists()

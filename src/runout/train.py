@@ -51,7 +51,7 @@ from runout.metrics import compare
 from runout.outputs import write_atomic
 from runout.simfiles import read_metadata
 from runout.train_settings import (  # noqa: F401  (the settings, re-exported)
-    OPTION_NAMES, PUSHFORWARD_LIMITS, SETTING_LIMITS, Limit, TrainConfig, check_settings, option_name,
+    OPTION_NAMES, PUSHFORWARD_LIMITS, SETTING_LIMITS, Limit, TrainConfig, check_settings, onset_at, option_name,
 )
 
 CHECKPOINT = "checkpoint.pt"
@@ -352,8 +352,7 @@ def _native_bf16(cfg: TrainConfig, ctx: Context) -> TrainConfig:
 
 def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> torch.Tensor:
     sampler, noise_gen = _generators(cfg.seed, step, ctx)
-    batch = data.sample(cfg.batch_size, sampler, unrolled_steps(cfg.seed, step, cfg.pushforward),
-                        cfg.onset_share, cfg.onset_frames)
+    batch = data.sample(cfg.batch_size, sampler, unrolled_steps(cfg.seed, step, cfg.pushforward), *onset_at(cfg, step))
     case = Case.of(batch.particle_type, bounds)
     autocast = torch.autocast(ctx.device.type, dtype=torch.bfloat16) if cfg.bf16 else nullcontext()
     with autocast:  # the model's own rollout from the true window, without gradient (none when batch.unroll is 0)

@@ -32,6 +32,7 @@ class TrainConfig:
     moving_weight: float = 1.0  # loss weight of a point moving faster than MOVING_SPEED against 1 for one that does not
     onset_share: float = 0.0  # share of the windows drawn from each simulation's first onset_frames frames (0: uniform)
     onset_frames: int = 20  # dataset frames from the earliest window start that count as the onset of motion
+    onset_schedule: tuple[tuple[int, float, int], ...] = ()  # (from step, share, frames): onset settings by step, overriding the two above from each step on
     seed: int = 0
     device: str = "auto"  # auto, cpu, cuda, cuda:1, ...
     resume: bool = False
@@ -76,6 +77,42 @@ SETTING_LIMITS = {
     **{name: Limit(lo, hi) for name, (lo, hi) in NETWORK_LIMITS.items()},
 }
 OPTION_NAMES = {"lr_init": "--lr"}  # the `runout train` options not named --field-name
+
+
+def parse_onset_schedule(text: str | None) -> tuple[tuple[int, float, int], ...]:
+    """--onset-schedule "STEP:SHARE:FRAMES,...", e.g. "0:0.4:4,14000:0.5:2,24000:0.1:4": from
+    each STEP on, windows are drawn with --onset-share SHARE and --onset-frames FRAMES. Steps
+    must rise; an empty text is no schedule. InputError naming the entry otherwise."""
+    if not text:
+        return ()
+    schedule = []
+    for entry in text.split(","):
+        parts = entry.strip().split(":")
+        try:
+            step, share, frames = int(parts[0]), float(parts[1]), int(parts[2])
+            if len(parts) != 3:
+                raise ValueError
+        except (ValueError, IndexError):
+            raise checks.InputError(f"--onset-schedule: the entry '{entry}' is not STEP:SHARE:FRAMES "
+                                    "(whole, fraction, whole), such as 0:0.4:4,14000:0.1:4.") from None
+        checks.number(step, "--onset-schedule step", None, 0, MAX_STEPS, whole=True)
+        checks.number(share, "--onset-schedule share", None, 0.0, 1.0)
+        checks.number(frames, "--onset-schedule frames", None, 1, 1_000_000, " frames", whole=True)
+        if schedule and step <= schedule[-1][0]:
+            raise checks.InputError(f"--onset-schedule: the step {step} of '{entry}' must be after the step "
+                                    f"{schedule[-1][0]} of the entry before it.")
+        schedule.append((step, share, frames))
+    return tuple(schedule)
+
+
+def onset_at(cfg: TrainConfig, step: int) -> tuple[float, int]:
+    """The (onset share, onset frames) of the training step `step`: the last --onset-schedule
+    entry that has begun, else --onset-share and --onset-frames."""
+    share, frames = cfg.onset_share, cfg.onset_frames
+    for begin, entry_share, entry_frames in cfg.onset_schedule:
+        if step >= begin:
+            share, frames = entry_share, entry_frames
+    return share, frames
 
 
 def option_name(setting: str) -> str:

@@ -42,6 +42,7 @@ def train(
     moving_weight: float = typer.Option(TrainConfig.moving_weight, "--moving-weight", help="Loss weight of a point moving faster than 0.25 m/s over its target step, against 1 for a slower one (1: every point the same)."),
     onset_share: float = typer.Option(TrainConfig.onset_share, "--onset-share", help="Share of the windows drawn from the onset of motion, each simulation's first --onset-frames frames (windows at rest included), instead of uniformly (0: uniform)."),
     onset_frames: int = typer.Option(TrainConfig.onset_frames, "--onset-frames", help="Dataset frames from the earliest window start that count as the onset (--onset-share)."),
+    onset_schedule: str = typer.Option("", "--onset-schedule", help="Onset settings by step, STEP:SHARE:FRAMES,... e.g. 0:0.4:4,14000:0.5:2,24000:0.1:4 (the recipe's three phases, docs/training.md): from each STEP on, windows are drawn as --onset-share SHARE --onset-frames FRAMES would; before the first STEP, those two options hold."),
     static_tail: int = typer.Option(TrainConfig.static_tail, "--static-tail", help="Train only up to this many frames after a simulation's flow stops (soil slower than 0.05 m/s); default: every frame."),
     latent: int = typer.Option(NetworkConfig.latent, "--latent", help="Latent size of nodes and edges."),
     hidden: int = typer.Option(NetworkConfig.hidden, "--hidden", help="Units of each hidden MLP layer."),
@@ -62,11 +63,12 @@ def train(
     from runout import checks
     from runout.outputs import check_folder, claim
     from runout.train import BEST, CHECKPOINT, LOG, SNAPSHOTS, check_settings, train as run_training
+    from runout.train_settings import parse_onset_schedule
 
     cfg = TrainConfig(
         data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise=noise,
         rest_windows=rest_windows, exact_rest=exact_rest, static_tail=static_tail, moving_weight=moving_weight,
-        onset_share=onset_share, onset_frames=onset_frames,
+        onset_share=onset_share, onset_frames=onset_frames, onset_schedule=parse_onset_schedule(onset_schedule),
         seed=seed, device=device, resume=resume, init=init,
         network=NetworkConfig(latent=latent, hidden=hidden, message_passing_steps=message_passing),
         save_every=save_every, keep_every=keep_every, log_every=log_every, valid_every=valid_every,
