@@ -7,7 +7,8 @@
 #
 # The chunk (1) regenerates its dataset from the seed when data/ lacks it (deterministic and
 # resumable, so a killed generation continues), (2) restores the run folder from the
-# committed checkpoint in models/ when runs/ lacks it, (3) trains with --resume for at most
+# committed checkpoint in models/ when runs/ lacks it, if that checkpoint was trained with the
+# recipe (an older one, solver 3's, is never continued: the stage starts afresh), (3) trains with --resume for at most
 # HOURS of wall time (the last whole step is saved, exit 0), and (4) copies the checkpoint
 # (weights + Adam state + step) and its log back to models/, ready to commit. The settings
 # are the recipe chosen by the pilots in docs/training.md; change them there and here together.
@@ -21,9 +22,11 @@ threads=${THREADS:-2}
 CELL=8          # m; 2 x 2 points per cell -> 4 m point spacing
 FRAMES=480
 NET=(--latent 64 --hidden 64 --message-passing-steps 5 --batch-size 2)
-# The recipe (docs/training.md, "The recipe"): windows at rest (the default), noise in units of
-# the data's velocity std; RECIPE_NOISE may override it for a pilot
-RECIPE=(--noise "${RECIPE_NOISE:-0.1}")  # provisional: round 1 of the pilots; --exact-rest is being piloted
+# The recipe (docs/training.md, rounds 8-10): noise 0.01 of the velocity std, no noise on the
+# scene at rest, pushforward 2, a weight average, and the onset of motion drawn in three phases
+# (the start from rest first, then the decelerations); RECIPE_NOISE may override the noise
+RECIPE=(--noise "${RECIPE_NOISE:-0.01}" --exact-rest --pushforward 2 --ema 0.999 --no-checkpoint-layers
+        --onset-schedule "${ONSET_SCHEDULE:-0:0.4:4,12000:0.5:2,20000:0.1:4}")
 # bf16 autocast only where the CPU multiplies bfloat16 natively (AVX512-BF16 or AMX): on an
 # AVX2-only CPU PyTorch falls back to a generic kernel, 14x slower than float32 (docs/training.md)
 if grep -q -E 'avx512_bf16|amx_bf16' /proc/cpuinfo 2>/dev/null; then NET+=(--bf16); fi
@@ -31,9 +34,9 @@ case "$stage" in
   pilot)    data=data/ft8;   count=260; run=runs/pilot8; model=models/pilot.pt; stage_data=finetune
             schedule=(--lr 4e-4 --lr-decay-steps 200000); init=() ;;
   base)     data=data/base8; count=320; run=runs/base8; model=models/base.pt; stage_data=base
-            schedule=(--lr 1e-4 --lr-decay-steps 300000); init=() ;;
+            schedule=(--lr 4e-4 --lr-decay-steps 200000); init=() ;;
   finetune) data=data/ft8;   count=260; run=runs/ft8;   model=models/slope.pt; stage_data=finetune
-            schedule=(--lr 1e-4 --lr-decay-steps 300000); init=(--init models/base.pt) ;;
+            schedule=(--lr 4e-4 --lr-decay-steps 200000); init=(--init models/base.pt) ;;
   *) echo "cpu_chunk.sh: the stage '$stage' is not one of pilot, base, finetune" >&2; exit 2 ;;
 esac
 log=${model%.pt}.log.jsonl
@@ -43,22 +46,35 @@ if [ ! -f "$data/metadata.json" ]; then
     --frames "$FRAMES" --seed 0 --out "$data"
 fi
 
+# Whether a checkpoint was trained with this recipe on solver-6 data: the recipe's settings
+# (--exact-rest among them) entered the checkpoints with it; the models committed before it
+# (solver 3, weights and Adam state) must not be continued, and a fine-tune must not start from them
+recipe_checkpoint() {
+  "${runout%/runout}/python" -c "import sys, torch; c = torch.load(sys.argv[1], weights_only=True, map_location='cpu'); sys.exit(not ('optimizer' in c and c.get('train', {}).get('exact_rest')))" "$1"
+}
 resume=()
-if [ -f "$run/checkpoint.pt" ]; then
+if [ -f "$run/checkpoint.pt" ] && recipe_checkpoint "$run/checkpoint.pt"; then
   resume=(--resume)
-elif [ -f "$model" ] && "${runout%/runout}/python" -c "import sys, torch; sys.exit('optimizer' not in torch.load(sys.argv[1], weights_only=True))" "$model"; then
-  # a committed checkpoint of this campaign carries its optimiser state (an older weights-only
-  # file, such as the smoke model, does not and is not continued)
+elif [ -f "$run/checkpoint.pt" ]; then
+  echo "cpu_chunk.sh: $run/checkpoint.pt predates the recipe; move $run away to start the stage afresh" >&2
+  exit 2
+elif [ -f "$model" ] && recipe_checkpoint "$model"; then
   mkdir -p "$run"
   cp "$model" "$run/checkpoint.pt"
   [ -f "$log" ] && cp "$log" "$run/log.jsonl"
   resume=(--resume)
+elif [ -f "$model" ]; then
+  echo "cpu_chunk.sh: $model predates the recipe (solver 3 or an older recipe), so this chunk starts the stage afresh in $run and replaces it at the end (git keeps the old file)" >&2
+fi
+if [ "$stage" = finetune ] && [ ${#resume[@]} -eq 0 ] && ! recipe_checkpoint models/base.pt; then
+  echo "cpu_chunk.sh: models/base.pt predates the recipe; train the base stage first (bash scripts/cpu_chunk.sh base HOURS)" >&2
+  exit 2
 fi
 if [ ${#resume[@]} -eq 1 ]; then init=(); fi
 
 OMP_NUM_THREADS=$threads "$runout" train --data "$data" --out "$run" --steps 100000000 --max-hours "$hours" \
   "${NET[@]}" "${RECIPE[@]}" "${schedule[@]}" "${init[@]}" "${resume[@]}" \
-  --save-every 1000 --log-every 100 --valid-every 5000 --valid-trajectories 4
+  --save-every 500 --log-every 50 --valid-every 5000 --valid-trajectories 4
 
 cp "$run/checkpoint.pt" "$model.tmp" && mv "$model.tmp" "$model"
 cp "$run/log.jsonl" "$log"
