@@ -11,7 +11,7 @@
 # recipe (an older one, solver 3's, is never continued: the stage starts afresh), (3) trains with --resume for at most
 # HOURS of wall time (the last whole step is saved, exit 0), and (4) copies the checkpoint
 # (weights + Adam state + step) and its log back to models/, ready to commit. The settings
-# are the recipe chosen by the pilots in docs/training.md; change them there and here together.
+# are runout.train_settings.RECIPE, the recipe chosen by the pilots in docs/training.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 stage=${1:?usage: cpu_chunk.sh pilot|base|finetune HOURS}
@@ -22,21 +22,20 @@ threads=${THREADS:-2}
 CELL=8          # m; 2 x 2 points per cell -> 4 m point spacing
 FRAMES=480
 NET=(--latent 64 --hidden 64 --message-passing-steps 5 --batch-size 2)
-# The recipe (docs/training.md, rounds 8-10): noise 0.01 of the velocity std, no noise on the
-# scene at rest, pushforward 2, a weight average, and the onset of motion drawn in three phases
-# (the start from rest first, then the decelerations); RECIPE_NOISE may override the noise
-RECIPE=(--noise "${RECIPE_NOISE:-0.01}" --exact-rest --pushforward 2 --ema 0.999 --no-checkpoint-layers
-        --onset-schedule "${ONSET_SCHEDULE:-0:0.4:4,12000:0.5:2,20000:0.1:4}")
+# The recipe (runout.train_settings.RECIPE, chosen by the pilots in docs/training.md, rounds 8-10):
+# learning rate and decay, noise 0.01 of the velocity std, no noise on the scene at rest,
+# pushforward 2, a weight average, and the onset of motion drawn in three phases
+read -r -a RECIPE <<< "$("${runout%/runout}/python" -c 'from runout.train_settings import recipe_options; print(" ".join(recipe_options()))')"
 # bf16 autocast only where the CPU multiplies bfloat16 natively (AVX512-BF16 or AMX): on an
 # AVX2-only CPU PyTorch falls back to a generic kernel, 14x slower than float32 (docs/training.md)
 if grep -q -E 'avx512_bf16|amx_bf16' /proc/cpuinfo 2>/dev/null; then NET+=(--bf16); fi
 case "$stage" in
   pilot)    data=data/ft8;   count=260; run=runs/pilot8; model=models/pilot.pt; stage_data=finetune
-            schedule=(--lr 4e-4 --lr-decay-steps 200000); init=() ;;
+            init=() ;;
   base)     data=data/base8; count=320; run=runs/base8; model=models/base.pt; stage_data=base
-            schedule=(--lr 4e-4 --lr-decay-steps 200000); init=() ;;
+            init=() ;;
   finetune) data=data/ft8;   count=260; run=runs/ft8;   model=models/slope.pt; stage_data=finetune
-            schedule=(--lr 4e-4 --lr-decay-steps 200000); init=(--init models/base.pt) ;;
+            init=(--init models/base.pt) ;;
   *) echo "cpu_chunk.sh: the stage '$stage' is not one of pilot, base, finetune" >&2; exit 2 ;;
 esac
 log=${model%.pt}.log.jsonl
@@ -50,7 +49,7 @@ fi
 # (--exact-rest among them) entered the checkpoints with it; the models committed before it
 # (solver 3, weights and Adam state) must not be continued, and a fine-tune must not start from them
 recipe_checkpoint() {
-  "${runout%/runout}/python" -c "import sys, torch; c = torch.load(sys.argv[1], weights_only=True, map_location='cpu'); sys.exit(not ('optimizer' in c and c.get('train', {}).get('exact_rest')))" "$1"
+  "${runout%/runout}/python" -c "import sys, torch; from runout.train_settings import trained_with_recipe; c = torch.load(sys.argv[1], weights_only=True, map_location='cpu'); sys.exit(not ('optimizer' in c and trained_with_recipe(c.get('train', {}))))" "$1"
 }
 resume=()
 if [ -f "$run/checkpoint.pt" ] && recipe_checkpoint "$run/checkpoint.pt"; then
@@ -73,7 +72,7 @@ fi
 if [ ${#resume[@]} -eq 1 ]; then init=(); fi
 
 OMP_NUM_THREADS=$threads "$runout" train --data "$data" --out "$run" --steps 100000000 --max-hours "$hours" \
-  "${NET[@]}" "${RECIPE[@]}" "${schedule[@]}" "${init[@]}" "${resume[@]}" \
+  "${NET[@]}" "${RECIPE[@]}" "${init[@]}" "${resume[@]}" \
   --save-every 500 --log-every 50 --valid-every 5000 --valid-trajectories 4
 
 cp "$run/checkpoint.pt" "$model.tmp" && mv "$model.tmp" "$model"

@@ -15,7 +15,8 @@ In one wall-clock budget it
    cumulative step and the list of sessions that made it), log.jsonl, session.json
    (figures of this session) and eval.png.
 
-The weights file holds no optimiser state (Adam's moments would make it three times larger
+Training uses the recipe (runout.train_settings.RECIPE), and a committed checkpoint trained
+before it (solver 3) is never a start. The weights file holds no optimiser state (Adam's moments would make it three times larger
 than the 16 MB a shipped model may take), so Adam restarts each session; the learning rate
 continues from the cumulative step. Needs torch, numpy, scipy, matplotlib and tqdm; not typer.
 """
@@ -81,7 +82,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--models", type=Path, default=Path("models"), help="Folder of the committed checkpoints.")
     p.add_argument("--init", type=Path, default=None, help="Start from this checkpoint instead of the ones in --models.")
     p.add_argument("--device", default="auto", help="auto, cpu or cuda.")
-    p.add_argument("--lr", type=float, default=1e-4, help="Initial learning rate (paper 1e-4).")
+    p.add_argument("--lr", type=float, default=None, help="Initial learning rate (default: the recipe's, runout.train_settings.RECIPE).")
     p.add_argument("--latent", type=int, default=128, help="Latent and hidden width (random start only).")
     p.add_argument("--message-passing", type=int, default=10, help="Processor steps (random start only).")
     p.add_argument("--bf16", action="store_true", help="Autocast the network to bfloat16.")
@@ -167,7 +168,11 @@ def _misfit(path: Path, meta: dict) -> str | None:
     """Why a checkpoint cannot start training on this data (None: it can)."""
     from runout.gns.checkpoint import read_checkpoint
 
+    from runout.train_settings import trained_with_recipe
+
     ckpt = read_checkpoint(path)
+    if not trained_with_recipe(ckpt.get("train", {})):
+        return "trained before the recipe (on solver-3 data, or with settings the pilots replaced)"
     radius = float(meta["default_connectivity_radius"])
     if abs(float(ckpt["radius"]) - radius) > 1e-6:
         return f"connectivity radius {ckpt['radius']:g} m, the data's is {radius:g} m (another cell size)"
@@ -185,12 +190,14 @@ def train_for_budget(args: argparse.Namespace, init: Path | None, budget: Budget
     """Train in chunks until the budget is spent; the measured rates and step count."""
     from runout.gns.simulator import NetworkConfig
     from runout.train import TrainConfig, train
+    from runout.train_settings import RECIPE
 
     shutil.rmtree(args.run, ignore_errors=True)
     network = NetworkConfig(latent=args.latent, hidden=args.latent, message_passing_steps=args.message_passing)
+    recipe = RECIPE | ({"lr_init": args.lr} if args.lr is not None else {})
     cfg = TrainConfig(
-        data=args.data, out=args.run, steps=MEASURE_STEPS, lr_init=args.lr, device=args.device, init=init,
-        network=network, bf16=args.bf16, valid_every=0, log_every=10, save_every=10**9,
+        data=args.data, out=args.run, steps=MEASURE_STEPS, device=args.device, init=init,
+        network=network, bf16=args.bf16, valid_every=0, log_every=10, save_every=10**9, **recipe,
     )
     t0 = time.monotonic()
     train(cfg)
@@ -217,7 +224,8 @@ def export_model(args: argparse.Namespace, init: Path | None, record: dict) -> P
     step = int(ckpt["step"]) + int(ckpt["train"]["lr_step_offset"])
     earlier = read_checkpoint(init).get("sessions", []) if init is not None else []
     path = args.out / MODEL_NAMES[args.stage]
-    save_checkpoint(path, simulator, step=step, train={"lr_step_offset": 0}, sessions=[*earlier, record])
+    settings = {k: v for k, v in ckpt["train"].items() if k not in ("data", "out", "init", "resume")}
+    save_checkpoint(path, simulator, step=step, train=settings | {"lr_step_offset": 0}, sessions=[*earlier, record])
     return path
 
 

@@ -16,6 +16,7 @@ from runout.errors import InputError
 from runout.gns.checkpoint import read_checkpoint
 from runout.gns.simulator import NetworkConfig
 from runout.train import TrainConfig, train
+from runout.train_settings import RECIPE
 from test_gns_synthetic import write_dataset
 
 torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
@@ -42,7 +43,8 @@ def tiny_model(folder: Path, width: int, radius: float) -> Path:
     meta["default_connectivity_radius"] = radius
     (data / "metadata.json").write_text(json.dumps(meta))
     network = NetworkConfig(latent=16, hidden=16, hidden_layers=2, message_passing_steps=2)
-    train(TrainConfig(data=data, out=folder / "run", steps=2, network=network, valid_every=0, log_every=1, checkpoint_layers=False))
+    train(TrainConfig(data=data, out=folder / "run", steps=2, network=network, valid_every=0, log_every=1, checkpoint_layers=False,
+                      exact_rest=True))
     return folder / "run" / "checkpoint.pt"
 
 
@@ -104,6 +106,7 @@ def test_a_base_session_then_a_finetune_session_continue_each_other(tmp_path):
     assert summary["training"]["first_steps_per_s"] > 0 and "position_mse_mean_m2" in summary["evaluation"]
     base = read_checkpoint(out / "base.pt")
     assert "optimizer" not in base and base["step"] == summary["training"]["steps"]
+    assert base["train"]["onset_schedule"] == RECIPE["onset_schedule"] and base["train"]["noise"] == RECIPE["noise"]
 
     (tmp_path / "models").mkdir()
     shutil.copyfile(out / "base.pt", tmp_path / "models" / "base.pt")
@@ -127,6 +130,19 @@ def test_a_committed_model_of_another_radius_is_passed_over(tmp_path):
     start, skipped = session.starting_checkpoint(args, meta)
     assert start == models / "base.pt"
     assert len(skipped) == 1 and "connectivity radius 11.5 m" in skipped[0]
+
+
+def test_a_committed_model_trained_before_the_recipe_is_passed_over(tmp_path):
+    """The committed solver-3 models (no --exact-rest in their settings) are never a start."""
+    models = tmp_path / "models"
+    models.mkdir()
+    old = read_checkpoint(tiny_model(tmp_path / "old", width=2, radius=4.6))
+    old["train"] = {k: v for k, v in old["train"].items() if k != "exact_rest"}
+    torch.save(old, models / "slope.pt")
+    args = session.parse_args(["--stage", "finetune", "--out", str(tmp_path / "out"), "--models", str(models)])
+    meta = {"default_connectivity_radius": 4.6, "material_features": ["tan_phi", "c_over_100kPa"]}
+    start, skipped = session.starting_checkpoint(args, meta)
+    assert start is None and len(skipped) == 1 and "trained before the recipe" in skipped[0]
 
 
 def test_a_session_whose_deadline_passes_during_generation_says_so(tmp_path):

@@ -240,3 +240,17 @@ def test_a_bad_onset_schedule_is_exit_2_before_any_work(tmp_path, capsys, value,
     code, err = run(["train", "--data", tmp_path / "none", "--out", tmp_path / "run", "--onset-schedule", value], capsys)
     assert code == 2 and words in err and one_sentence(err)
     assert not (tmp_path / "run").exists()
+
+
+def test_the_recipe_as_options_gives_the_recipe(tmp_path, capsys, monkeypatch):
+    """`runout train` with recipe_options() trains with exactly RECIPE's settings (the campaign's
+    scripts pass the recipe that way)."""
+    import runout.train
+    from runout.train_settings import RECIPE, recipe_options
+
+    seen = []
+    monkeypatch.setattr(runout.train, "train", lambda cfg: seen.append(cfg))
+    data = write_dataset(tmp_path / "data")
+    code, err = run(["train", "--data", data, "--out", tmp_path / "run", *recipe_options()], capsys)
+    assert code == 0, err
+    assert {name: getattr(seen[0], name) for name in RECIPE} == RECIPE

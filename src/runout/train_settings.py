@@ -79,6 +79,38 @@ SETTING_LIMITS = {
 OPTION_NAMES = {"lr_init": "--lr"}  # the `runout train` options not named --field-name
 
 
+# The training recipe the pilots chose (docs/training.md, rounds 8-10), as TrainConfig fields:
+# a learning rate for budgets of tens of thousands of steps, noise 0.01 of the velocity std,
+# no noise on the scene at rest, pushforward 2, a weight average, activations kept, and the
+# onset of motion drawn in three phases (the start from rest first, then the decelerations).
+# The campaign's scripts (scripts/cpu_chunk.sh, scripts/gpu_session.py) train with it.
+RECIPE = {
+    "lr_init": 4e-4, "lr_decay_steps": 200_000.0, "noise": 0.01, "exact_rest": True, "pushforward": 2,
+    "ema": 0.999, "checkpoint_layers": False, "onset_schedule": ((0, 0.4, 4), (12_000, 0.5, 2), (20_000, 0.1, 4)),
+}
+
+
+def recipe_options() -> list[str]:
+    """RECIPE as `runout train` options."""
+    options = []
+    for name, value in RECIPE.items():
+        if name == "onset_schedule":
+            options += ["--onset-schedule", ",".join(f"{step}:{share:g}:{frames}" for step, share, frames in value)]
+        elif name == "checkpoint_layers":
+            options.append("--checkpoint-layers" if value else "--no-checkpoint-layers")
+        elif name == "exact_rest":
+            options.append("--exact-rest" if value else "--noisy-rest")
+        else:
+            options += [option_name(name), f"{value:g}"]
+    return options
+
+
+def trained_with_recipe(train_settings: dict) -> bool:
+    """Whether a checkpoint's training settings are the recipe's generation (--exact-rest, which
+    the pilots brought in on solver-6 data): the committed models before it learned solver 3."""
+    return bool(train_settings.get("exact_rest"))
+
+
 def parse_onset_schedule(text: str | None) -> tuple[tuple[int, float, int], ...]:
     """--onset-schedule "STEP:SHARE:FRAMES,...", e.g. "0:0.4:4,14000:0.5:2,24000:0.1:4": from
     each STEP on, windows are drawn with --onset-share SHARE and --onset-frames FRAMES. Steps
