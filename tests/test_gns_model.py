@@ -246,3 +246,73 @@ def test_renormalising_keeps_the_predictions_and_takes_the_new_scales():
         after = sim.next_positions(window, ptype, material, BOUNDS)
     torch.testing.assert_close(after, before, rtol=0, atol=1e-5)  # m, of positions up to 22 m
     assert (after - window[:, -1]).abs().max() > 1e-3  # the check is not about a model that stands still
+
+
+# ----------------------------------------------------------------------------- overburden input
+
+
+def lattice(width_m: float, height_m: float, spacing: float = 4.0, x0: float = 0.0) -> torch.Tensor:
+    """Points at the centres of a spacing-m lattice filling [x0, x0 + width] x [0, height] (m),
+    as runout fills a scene (2 x 2 points per 8 m cell)."""
+    xs = torch.arange(x0 + spacing / 2, x0 + width_m, spacing)
+    ys = torch.arange(spacing / 2, height_m, spacing)
+    X, Y = torch.meshgrid(xs, ys, indexing="ij")
+    return torch.stack([X.flatten(), Y.flatten()], 1)
+
+
+def test_overburden_is_the_depth_below_the_surface_at_rest():
+    """A 2:1 slope at rest (lattice of 4 m, the model's columns of 8 m): each soil point's
+    overburden equals the depth from the ground surface above it to the point, and kinematic
+    points (ground) above do not count; two graphs are kept apart."""
+    from runout.gns.simulator import overburden_depth
+
+    block = lattice(80.0, 64.0)
+    surface = 64.0 - 0.5 * torch.clamp(block[:, 0] - 16.0, min=0.0)  # flat crest, then a 1:2 face (m)
+    points = block[block[:, 1] < surface]
+    top_row = {}  # highest point of each 8 m column: the surface the lattice resolves
+    for x, y in points.tolist():
+        c = int(x // 8.0)
+        top_row[c] = max(top_row.get(c, -1.0), y)
+    want = torch.tensor([top_row[int(x // 8.0)] - y for x, y in points.tolist()])
+    every = torch.ones(len(points), dtype=torch.bool)
+    depth = overburden_depth(points, every, None, 8.0, 16.0)
+    # on the face a column's two lattice columns end a row (4 m) apart: the depth there is their mean
+    assert (depth - want).abs().max() <= 2.0 + 1e-4 and (depth - want)[points[:, 0] < 16.0].abs().max() < 1e-4
+    flat = lattice(40.0, 40.0)  # top row at y = 38 m
+    soil = torch.ones(len(flat), dtype=torch.bool)
+    assert torch.allclose(overburden_depth(flat, soil, None, 8.0, 16.0), 38.0 - flat[:, 1])
+    lid = torch.cat([flat, lattice(40.0, 4.0) + torch.tensor([0.0, 60.0])])  # a kinematic row above
+    is_soil = torch.cat([soil, torch.zeros(len(lid) - len(flat), dtype=torch.bool)])
+    assert torch.allclose(overburden_depth(lid, is_soil, None, 8.0, 16.0)[: len(flat)], 38.0 - flat[:, 1])
+    two = torch.cat([flat, flat[flat[:, 1] < 20.0]])  # a second scene 20 m tall, in the same place
+    graph = torch.cat([torch.zeros(len(flat)), torch.ones(len(two) - len(flat))]).long()
+    depth2 = overburden_depth(two, torch.ones(len(two), dtype=torch.bool), graph, 8.0, 16.0)
+    assert torch.allclose(depth2[: len(flat)], 38.0 - flat[:, 1]) and depth2[len(flat):].max() == 16.0
+
+
+def test_a_model_with_the_overburden_input_sees_depth_and_round_trips(tmp_path):
+    """With schema.overburden the node encoder takes one more column, the prediction at rest
+    changes with the soil above a point, and a checkpoint keeps it; schemas without the field
+    (older checkpoints) have none."""
+    frames, ptype = heap()
+    torch.manual_seed(0)
+    sim = Simulator(FeatureSchema(material_features=("tan_phi", "c_over_100kPa"), overburden=True), STATS, 4.6, TINY).eval()
+    assert sim.schema.node_width == tiny_simulator(("tan_phi", "c_over_100kPa")).schema.node_width + 1
+    material = torch.rand((40, 2))
+    window = frames.transpose(0, 1)
+    top = window[:, -1, 1] == window[:, -1, 1].max()
+    shallower = window.clone()
+    shallower[top, :, 0] += 20.0  # the heap's top row moved aside: the points below it lie 2 m less deep
+    with torch.no_grad():
+        nodes, moved = (sim.node_features(w, ptype, material, BOUNDS) for w in (window, shallower))
+        column = 2 * 5 + 4  # the overburden column follows 10 velocities and 4 wall distances
+        below = (ptype == 6) & ~top
+        change = nodes[below, column] - moved[below, column]  # m / 100: one lattice row of 2 m spread over the column's
+        assert change.min() >= 0.01 - 1e-6 and change.max() <= 0.02 + 1e-6  # width, which holds it whole (2 m) or half of it
+        assert not torch.equal(sim(window, ptype, material, BOUNDS), sim(shallower, ptype, material, BOUNDS))
+        save_checkpoint(tmp_path / "m.pt", sim, step=1)
+        loaded = load_simulator(tmp_path / "m.pt")
+        assert loaded.schema.overburden and torch.equal(sim.next_positions(window, ptype, material, BOUNDS),
+                                                         loaded.next_positions(window, ptype, material, BOUNDS))
+    assert FeatureSchema.from_dict({k: v for k, v in sim.schema.to_dict().items() if k != "overburden"}).overburden is False
+    assert FeatureSchema.problem({**sim.schema.to_dict(), "overburden": 1}) == "overburden = 1 must be true or false"

@@ -284,3 +284,19 @@ def test_a_tiny_model_learns_to_start_from_rest_and_beats_standing_still(tmp_pat
     moved, fell = final_displacement(predicted).mean(), final_displacement(truth).mean()  # m; the truth falls 3 m
     assert 0.8 * fell < moved < 1.2 * fell
     assert compare(predicted, truth)["position_mse_mean_m2"] < 0.1 * compare(still, truth)["position_mse_mean_m2"]
+
+
+def test_the_overburden_input_is_chosen_by_new_runs_only(tmp_path):
+    """--overburden makes the new model's node encoder one column wider and the checkpoint
+    says so; a run resumed or fine-tuned from it keeps it, and asking to drop (or add) it
+    there is a one-sentence InputError."""
+    data = write_dataset(tmp_path / "data")
+    deep = train(config(data, tmp_path / "deep", steps=2, overburden=True))
+    assert deep.schema.overburden and read_checkpoint(tmp_path / "deep" / "checkpoint.pt")["schema"]["overburden"]
+    assert train(config(data, tmp_path / "deep", steps=3, resume=True)).schema.overburden
+    with pytest.raises(InputError, match=r"deep/checkpoint.pt has the overburden input, so it trains only with it"):
+        train(config(data, tmp_path / "deep", steps=4, resume=True, overburden=False))
+    plain = train(config(data, tmp_path / "plain", steps=2))
+    assert not plain.schema.overburden
+    with pytest.raises(InputError, match=r"plain/checkpoint.pt has no overburden input, so it trains only without it"):
+        train(config(data, tmp_path / "tuned", steps=2, init=tmp_path / "plain" / "checkpoint.pt", overburden=True))

@@ -106,6 +106,7 @@ class FeatureSchema:
     type_embedding: int = 16
     material_features: tuple[str, ...] = MATERIAL_FEATURE_NAMES
     frame_stride: int = 1  # dataset frames per step (checkpoints without it: 1)
+    overburden: bool = False  # a node input: the depth of soil above each point in its column (checkpoints without it: none)
 
     @property
     def window_frames(self) -> int:
@@ -134,7 +135,7 @@ class FeatureSchema:
     @property
     def node_width(self) -> int:
         """Columns entering the node encoder."""
-        return (self.history - 1) * self.dim + 2 * self.dim + self.type_embedding + self.material_width
+        return (self.history - 1) * self.dim + 2 * self.dim + int(self.overburden) + self.type_embedding + self.material_width
 
     @property
     def edge_width(self) -> int:
@@ -168,14 +169,19 @@ class FeatureSchema:
         for key in ("history", "dim", "particle_types", "type_embedding", "frame_stride"):
             if not isinstance(d.get(key, 0), int):
                 return f"{key} = {d[key]!r} must be a whole number"
+        if not isinstance(d.get("overburden", False), bool):
+            return f"overburden = {d['overburden']!r} must be true or false"
         names = d.get("material_features", MATERIAL_FEATURE_NAMES)
         if not isinstance(names, (list, tuple)) or list(names) != list(MATERIAL_FEATURE_NAMES[: len(names)]) or not names:
             return f"material_features = {names!r} must be [tan_phi] or [tan_phi, c_over_100kPa]"
         return None
 
     def difference(self, other: "FeatureSchema") -> str | None:
-        """The first field in which `other` differs, as a phrase, or None when equal."""
+        """The first field in which `other` differs, as a phrase, or None when equal (the
+        overburden input is the model's own: data never call for it)."""
         for f in fields(self):
+            if f.name == "overburden":
+                continue
             mine, theirs = getattr(self, f.name), getattr(other, f.name)
             if mine != theirs:
                 return f"{f.name} is {_show(mine)} in the model but {_show(theirs)} in the data"

@@ -435,6 +435,7 @@ def _start(cfg: TrainConfig, meta: dict, data: Simulations):
                 f"leave --frame-stride out or start a new run in another --out."
             )
         check_schema(simulator, data.schema(simulator.schema), path, data.path)
+        _check_overburden(cfg, simulator, path)
         offset = ckpt["train"]["lr_step_offset"]
         return simulator, ckpt, replace(cfg, lr_step_offset=offset, frame_stride=simulator.frame_stride)
     if (out / CHECKPOINT).exists():
@@ -452,14 +453,25 @@ def _start(cfg: TrainConfig, meta: dict, data: Simulations):
         if wanted.material_features != simulator.schema.material_features:
             widen_material_features(simulator, wanted.material_features, cfg.init)
         check_schema(simulator, wanted, cfg.init, data.path)
+        _check_overburden(cfg, simulator, cfg.init)
         offset = int(base.get("step", 0)) + base.get("train", {}).get("lr_step_offset", 0)
         return simulator, None, replace(cfg, lr_step_offset=offset, frame_stride=simulator.frame_stride)
     stride = cfg.frame_stride or 1
     stats = _stride_statistics(meta, data, stride, cfg.noise)
-    schema = data.schema(FeatureSchema(frame_stride=stride))
+    schema = data.schema(FeatureSchema(frame_stride=stride, overburden=bool(cfg.overburden)))
     torch.manual_seed(cfg.seed)
     radius = cfg.radius if cfg.radius is not None else float(meta["default_connectivity_radius"])
     return Simulator(schema, stats, radius, cfg.network), None, replace(cfg, frame_stride=stride)
+
+
+def _check_overburden(cfg: TrainConfig, simulator: Simulator, source) -> None:
+    """InputError when --overburden / --no-overburden asks for a network input that the
+    checkpoint it continues has not (or has): the node encoder's width is fixed by it."""
+    if cfg.overburden is not None and cfg.overburden != simulator.schema.overburden:
+        has = "has the" if simulator.schema.overburden else "has no"
+        raise InputError(f"{source} {has} overburden input, so it trains only "
+                         f"{'with' if simulator.schema.overburden else 'without'} it; leave --overburden out "
+                         "or start a new run in another --out.")
 
 
 def _restride(simulator: Simulator, stride: int, meta: dict, data: Simulations, noise: float) -> None:

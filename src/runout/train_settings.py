@@ -53,6 +53,7 @@ class TrainConfig:
     pushforward: int = 0  # each step first unrolls n ~ U{0..pushforward} steps without gradient (0: one-step)
     compile: bool = False  # run the network through torch.compile (1.19x the steps on one CPU thread, docs/training.md)
     ema: float = 0.0  # decay per step of the weight average saved as the model (0: the last step's weights)
+    overburden: bool | None = None  # give the network each point's depth of soil above it (None: the checkpoint's, else no)
 
 
 @dataclass(frozen=True)
