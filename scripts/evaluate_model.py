@@ -3,7 +3,7 @@
     .venv/bin/python scripts/evaluate_model.py models/slope.pt --data DATA --out runs/eval_slope
 
 1. Rollouts from rest (frame 0 held, as users' scenes start) of the first --limit scenes of
-   DATA/test.npz (held out from training), scored against the MPM beside standing still:
+   DATA/test.npz (held out from training; --split valid for the scenes the pilots are judged on), scored against the MPM beside standing still:
    mean position error (m), front errors relative to the fronts' travel, extent runout
    error, mean displacement (runout.evaluate.heldout).
 2. A column collapse (examples/column_a1.toml: 150 x 150 m, phi 22.5 deg, c 25 kPa) filled
@@ -27,12 +27,12 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 
 
-def test_split(simulator, data: Path, limit: int | None = None) -> dict:
-    """The first `limit` test scenes rolled out from rest, scored beside standing still
-    (runout.evaluate.heldout)."""
+def heldout(simulator, data: Path, split: str = "test", limit: int | None = None) -> dict:
+    """The first `limit` scenes of the split rolled out from rest, scored beside standing
+    still (runout.evaluate.heldout)."""
     from runout.evaluate.heldout import evaluate_heldout
 
-    return evaluate_heldout(simulator, data, "test", limit)
+    return evaluate_heldout(simulator, data, split, limit)
 
 
 def curves(log: Path, path: Path) -> dict:
@@ -102,7 +102,8 @@ def main() -> None:
     p.add_argument("--column", type=Path, default=REPO / "examples" / "column_a1.toml")
     p.add_argument("--frames", type=int, default=240, help="Frames of the column runs.")
     p.add_argument("--no-column", action="store_true", help="Skip the column (e.g. for a friction-only base model).")
-    p.add_argument("--limit", type=int, default=16, help="Roll out the first LIMIT test scenes (at least 16 for a verdict).")
+    p.add_argument("--limit", type=int, default=16, help="Roll out the first LIMIT scenes of the split (at least 16 for a verdict).")
+    p.add_argument("--split", choices=("test", "valid"), default="test", help="Held-out split: test, or valid (the pilots' 16 scenes).")
     p.add_argument("--log", type=Path, default=None, help="The run's log.jsonl: draw OUT/curves.png from it.")
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args()
@@ -112,14 +113,20 @@ def main() -> None:
     args.out.mkdir(parents=True, exist_ok=True)
     simulator = load_simulator(args.model)
     t0 = time.perf_counter()
-    metrics = {"model": str(args.model), "test_split": test_split(simulator, args.data, args.limit)}
-    metrics["test_split"]["rollout_wall_s"] = round(time.perf_counter() - t0, 1)
+    key = f"{args.split}_split"
+    metrics = {"model": str(args.model), key: heldout(simulator, args.data, args.split, args.limit)}
+    metrics[key]["rollout_wall_s"] = round(time.perf_counter() - t0, 1)
     if not args.no_column:
         metrics["column"] = column(simulator, args.column, args.frames, args.out)
     if args.log is not None:
         metrics["curves"] = curves(args.log, args.out / "curves.png")
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=1))
     print(json.dumps(metrics, indent=1))
+    model, still = metrics[key]["model"], metrics[key]["standing_still"]
+    print(f"{args.model}: {model['scenes']} {args.split} scenes from rest: position error {model['position_error_m']:.2f} m "
+          f"(standing still {still['position_error_m']:.2f}), fronts {100 * model['front_error']:.1f} % of their travel, "
+          f"extent runout error {100 * model['runout_error']:.1f} %, mean displacement {model['displacement_m']:.1f} m "
+          f"(MPM {model['displacement_mpm_m']:.1f}); {metrics[key]['rollout_wall_s']:.0f} s")
 
 
 if __name__ == "__main__":
