@@ -7,7 +7,7 @@ from runout.gns.checkpoint import check_schema, load_simulator, save_checkpoint,
 from runout.gns.network import EdgeUpdate
 from runout.gns.rollout import CHECK_EVERY, MIN_FRAMES_BEFORE_STOP, RolloutDiverged, rollout
 from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator, corrected_target, random_walk_noise
+from runout.gns.simulator import Case, NetworkConfig, Normalisation, Simulator, corrected_target, random_walk_noise
 
 torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
 
@@ -316,3 +316,62 @@ def test_a_model_with_the_overburden_input_sees_depth_and_round_trips(tmp_path):
                                                          loaded.next_positions(window, ptype, material, BOUNDS))
     assert FeatureSchema.from_dict({k: v for k, v in sim.schema.to_dict().items() if k != "overburden"}).overburden is False
     assert FeatureSchema.problem({**sim.schema.to_dict(), "overburden": 1}) == "overburden = 1 must be true or false"
+
+
+# ----------------------------------------------------------------------------- rigid ground
+
+
+def test_soil_does_not_pass_through_the_fixed_ground():
+    """The MPM's fixed ground is rigid: a GNS step that would carry a soil point into it
+    raises the point to its column's floor (the top ground point's centre less a quarter
+    spacing), one that would carry it sideways into a step of the ground keeps its x as at a
+    wall, and a point under an overhang of a fixed region is left alone."""
+    ground = [(x, 2.0) for x in range(2, 40, 4)] + [(x, 6.0) for x in range(22, 40, 4)]  # a 4 m step up at x = 20 m
+    overhang = [(34.0, 30.0)]
+    soil = [(2.0, 6.0), (14.0, 6.0), (18.0, 3.5), (30.0, 10.0), (34.0, 20.0)]
+    points = torch.tensor(ground + overhang + soil)
+    ptype = torch.tensor([3] * (len(ground) + 1) + [6] * len(soil))
+    case = Case.of(ptype, BOUNDS.new_tensor([[0.0, 40.0], [0.0, 40.0]]), points, None, 4.0)
+    predicted = points.clone()
+    predicted[-5:] = torch.tensor([[2.5, -5.0], [15.0, 0.5], [21.0, 3.0], [31.0, 8.0], [34.0, 19.0]])
+    moved = case.constrain(predicted, points)
+    assert torch.equal(moved[: len(ground) + 1], points[: len(ground) + 1])  # the fixed points stay
+    assert moved[-5].tolist() == [2.5, 1.0]  # sank: raised to the floor, 2 - 1 m
+    assert moved[-4].tolist() == [15.0, 1.0]
+    assert moved[-3].tolist() == [18.0, 3.0]  # into the step's side: x kept, y as predicted (above its own floor)
+    assert moved[-2].tolist() == [31.0, 8.0]  # above the step's floor (29 m): free
+    assert moved[-1].tolist() == [34.0, 19.0]  # under the overhang (floor 29 m there): left alone
+    walls_only = Case.of(ptype, case.bounds).constrain(predicted, points)[-5:]  # no ground given: the domain's bounds only
+    assert torch.equal(walls_only, predicted[-5:].clamp(min=0.0))
+    two = Case.of(torch.cat([ptype, ptype]), case.bounds, torch.cat([points, points + torch.tensor([0.0, 10.0])]),
+                  torch.cat([torch.zeros(len(points)), torch.ones(len(points))]).long(), 4.0)
+    lifted = two.constrain(torch.cat([predicted, predicted]), torch.cat([points, points + torch.tensor([0.0, 10.0])]))
+    assert lifted[len(points) + len(ground) + 1].tolist() == [2.5, 11.0]  # each scene its own ground
+
+
+def test_the_mpm_soil_stays_above_the_gns_floor():
+    """The floor is the MPM's own behaviour: a column collapsing onto stepped fixed ground
+    (8 m cells, 4 m points, 4.5 s) never puts a soil point below its column's floor, so the
+    constraint takes away nothing the MPM would do."""
+    from runout.gns.simulator import Ground
+    from runout.mpm import simulate
+    from runout.scene import scene_from_dict
+
+    scene = scene_from_dict({
+        "domain": {"width": 160.0, "height": 64.0, "cell_size": 8.0},
+        "time": {"frames": 120},
+        "materials": {"soil": {"friction_angle": 15.0, "cohesion": 2.0}, "ground": {"model": "elastic"}},
+        "regions": [
+            {"material": "ground", "polygon": [[0, 0], [160, 0], [160, 8], [0, 8]], "fixed": True},
+            {"material": "ground", "polygon": [[56, 8], [160, 8], [160, 16], [56, 16]], "fixed": True},  # an 8 m step
+            {"material": "soil", "polygon": [[0, 8], [40, 8], [40, 48], [0, 48]]},
+        ],
+    })
+    t = simulate([scene], device="cpu", progress=False)[0]
+    kinematic = torch.from_numpy(t.particle_type == 3)
+    positions = torch.from_numpy(t.positions).double()
+    ground = Ground.of(positions[0], kinematic, None, 4.0)
+    soil = positions[:, ~kinematic]
+    assert soil[-1, :, 0].max() > 64.0, "the soil must climb the step for the test to mean something"
+    depth_below = max(float((ground.floor_at(soil[f], None) - soil[f, :, 1]).max()) for f in range(len(soil)))
+    assert depth_below <= 0.0, f"MPM soil {depth_below:.2f} m below the GNS floor"

@@ -59,7 +59,8 @@ def rollout(
     particle_type = particle_type.to(device)
     material = material.to(device)
     graph = None if graph is None else graph.to(device)
-    case = Case.of(particle_type, torch.as_tensor(bounds, dtype=window.dtype, device=device))
+    case = Case.of(particle_type, torch.as_tensor(bounds, dtype=window.dtype, device=device), window[:, 0], graph,
+                   simulator.point_spacing)
     frames = list(window.unbind(1))
     min_frames = math.ceil(MIN_FRAMES_BEFORE_STOP / simulator.frame_stride)  # in steps
     for step in tqdm(range(n_steps), disable=not progress, desc="GNS rollout", unit="step"):

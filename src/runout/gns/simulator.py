@@ -9,7 +9,7 @@ dataset frames (1 frame, 0.0375 s, unless trained with --frame-stride). The netw
 Training, rollout and the inverse tell one story with one Case (the domain bounds, which
 points move, the wall clamp):
 
-    case = Case.of(particle_type, bounds)
+    case = Case.of(particle_type, bounds, positions, graph, simulator.point_spacing)
     window = simulator.pushforward(window, n, particle_type, material, case)            # train, n >= 0 steps
     noisy, target = simulator.training_inputs(window, next_position, case, generator)   # train
     loss = simulator.loss(simulator(noisy, particle_type, material, case.bounds), target, case)
@@ -75,23 +75,80 @@ def _finite(x) -> bool:
 
 
 @dataclass(frozen=True)
+class Ground:
+    """The rigid ground of one or more scenes, as the lowest height a soil point may take in
+    each vertical column (m): the centre of the column's topmost kinematic point less
+    GROUND_TOLERANCE point spacings (none where a column has no ground: -inf)."""
+
+    floor: torch.Tensor  # [G, C] m
+    width: float  # m, column width (one point spacing), columns from x = 0
+
+    @classmethod
+    def of(cls, positions: torch.Tensor, kinematic: torch.Tensor, graph: torch.Tensor | None, spacing: float) -> "Ground":
+        col = torch.floor(positions[:, 0] / spacing).long().clamp(min=0)
+        g = torch.zeros_like(col) if graph is None else graph.long()
+        n_graphs, n_cols = int(g.max()) + 1 if len(g) else 1, int(col.max()) + 1 if len(col) else 1
+        floor = torch.full((n_graphs * n_cols,), -math.inf, dtype=positions.dtype, device=positions.device)
+        if kinematic.any():
+            floor = floor.scatter_reduce(0, (g * n_cols + col)[kinematic], positions[kinematic, 1], "amax")
+        return cls((floor - GROUND_TOLERANCE * spacing).reshape(n_graphs, n_cols), float(spacing))
+
+    def floor_at(self, positions: torch.Tensor, graph: torch.Tensor | None) -> torch.Tensor:
+        """The floor (m) of the column each of positions [N, 2] stands in."""
+        col = torch.floor(positions[:, 0] / self.width).long().clamp(0, self.floor.shape[1] - 1)
+        g = torch.zeros_like(col) if graph is None else graph.long()
+        return self.floor[g, col].to(positions.dtype)
+
+    def clamp(self, predicted: torch.Tensor, current: torch.Tensor, graph: torch.Tensor | None) -> torch.Tensor:
+        """predicted [N, 2] kept out of the ground by the points now above it (at `current`):
+        one that would sink below its column's floor is raised to it, and one that would move
+        sideways into a column whose floor is above it (a step of the ground) keeps its x, as
+        at a wall. A point now below its column's floor (under an overhang of a fixed region)
+        is left alone."""
+        here, there = self.floor_at(current, graph), self.floor_at(predicted, graph)
+        above = current[:, 1] >= here
+        blocked = above & (current[:, 1] < there)
+        x = torch.where(blocked, current[:, 0], predicted[:, 0])
+        floor = torch.where(blocked, here, there)
+        y = torch.where(above, torch.maximum(predicted[:, 1], floor), predicted[:, 1])
+        return torch.stack([x, y], dim=1)
+
+
+# point spacings below the centre of a column's topmost ground point that a soil point may
+# reach: the MPM's soil stays within 0.85 m (0.21 spacings) of it on 16 validation scenes of
+# data/ft8 over all 480 frames, stepped ground included (docs/gns.md)
+GROUND_TOLERANCE = 0.25
+
+
+@dataclass(frozen=True)
 class Case:
     """The setup a graph batch is simulated in (LagrangeBench's case setup): the domain
-    bounds [[x_lo, x_hi], [y_lo, y_hi]] (m; [2, 2], or [N, 2, 2] per point) and the mask of
-    the points that move (not kinematic, type 3). Kinematic points keep their positions;
-    moving points are clamped into the domain (the rigid walls)."""
+    bounds [[x_lo, x_hi], [y_lo, y_hi]] (m; [2, 2], or [N, 2, 2] per point), the mask of
+    the points that move (not kinematic, type 3) and, when given, the rigid ground and the
+    scene of each point. Kinematic points keep their positions; moving points are clamped
+    into the domain (the rigid walls) and kept out of the ground (the MPM's fixed ground
+    nodes, which soil does not pass)."""
 
     bounds: torch.Tensor
     movable: torch.Tensor  # [N] bool
+    ground: Ground | None = None
+    graph: torch.Tensor | None = None  # [N] scene of each point (None: one scene)
 
     @classmethod
-    def of(cls, particle_type: torch.Tensor, bounds) -> "Case":
+    def of(cls, particle_type: torch.Tensor, bounds, positions: torch.Tensor | None = None,
+           graph: torch.Tensor | None = None, spacing: float | None = None) -> "Case":
+        """positions [N, 2] (m) and spacing (m): also keep soil out of the ground that the
+        kinematic points among them fill."""
         bounds = torch.as_tensor(bounds, device=particle_type.device)
-        return cls(bounds, particle_type != PARTICLE_TYPE_KINEMATIC)
+        movable = particle_type != PARTICLE_TYPE_KINEMATIC
+        ground = None if positions is None or spacing is None else Ground.of(positions, ~movable, graph, spacing)
+        return cls(bounds, movable, ground, graph)
 
     def constrain(self, predicted: torch.Tensor, current: torch.Tensor) -> torch.Tensor:
-        """Predicted positions [N, 2] with kinematic points held at `current` and every point
-        clamped into the domain."""
+        """Predicted positions [N, 2] with kinematic points held at `current`, every point
+        clamped into the domain and, with a ground, no soil point below its column's floor."""
+        if self.ground is not None:
+            predicted = self.ground.clamp(predicted, current, self.graph)
         predicted = torch.where(self.movable[:, None], predicted, current)
         return torch.clamp(predicted, self.bounds[..., 0], self.bounds[..., 1])
 
