@@ -97,10 +97,10 @@ def recipe_options() -> list[str]:
     for name, value in RECIPE.items():
         if name == "onset_schedule":
             options += ["--onset-schedule", ",".join(f"{step}:{share:g}:{frames}" for step, share, frames in value)]
-        elif name == "checkpoint_layers":
-            options.append("--checkpoint-layers" if value else "--no-checkpoint-layers")
         elif name == "exact_rest":
             options.append("--exact-rest" if value else "--noisy-rest")
+        elif isinstance(value, bool):  # --checkpoint-layers/--no-checkpoint-layers, --overburden/--no-overburden, ...
+            options.append(option_name(name) if value else "--no-" + option_name(name)[2:])
         else:
             options += [option_name(name), f"{value:g}"]
     return options
