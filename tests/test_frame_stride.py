@@ -18,7 +18,7 @@ from runout.inverse import load_inverse_spec, load_observation
 from runout.inverse.forward import inverse_problem
 from runout.metrics import at_common_times, compare, position_mse
 from runout.scene import scene_from_dict
-from runout.simfiles import read_simulations, statistics
+from runout.simfiles import read_simulations, statistics, write_simulations
 from runout.train import train
 from runout.trajectory import trajectory_from_features
 from test_cli_exits import one_sentence, run
@@ -62,6 +62,31 @@ def test_windows_at_rest_start_before_frame_zero_at_stride_two(tmp_path):
     window, future, _, _, _ = sims._window(18 + 7)  # start frame -3: frames 0, 0, 1, 3, 5, 7
     torch.testing.assert_close(window, positions[[0, 0, 1, 3, 5, 7]].transpose(0, 1))
     torch.testing.assert_close(future[:, -1], positions[9])
+
+
+def test_a_thrown_block_gets_no_windows_before_its_first_frame(tmp_path):
+    """Family a throws blocks at up to 15 m/s: holding such a scene's frame 0 before it would ask
+    the model for a jump from standing still to full speed in one step, so only a simulation
+    that starts at rest gets windows before frame 0."""
+    from runout.gns.samples import START_SPEED
+
+    at_rest = falling_block(20, 0.5)
+    positions, ptype, material = falling_block(20, 0.5)
+    soil = ptype != 3
+    thrown = positions.copy()
+    thrown[:, soil, 0] += 10.0 * FRAME_DT * np.arange(20)[:, None]  # 10 m/s sideways from frame 0
+    write_simulations(tmp_path / "train.npz", [at_rest, (thrown, ptype, material)])
+    sims = Simulations(tmp_path / "train.npz", torch.device("cpu")).with_stride(2)
+    assert sims.starts_at_rest == [True, False]
+    assert 10.0 > START_SPEED > float(np.abs(np.diff(at_rest[0][:2], axis=0)).max()) / FRAME_DT
+    assert sims.n_windows == (20 - 6 * 2 + 5 * 2) + (20 - 6 * 2)  # starts -10..7, then 0..7
+    window, future, _, _, held = sims._window(18)  # the thrown block's first window starts at its frame 0
+    torch.testing.assert_close(window, torch.from_numpy(thrown[0:11:2]).transpose(0, 1))
+    torch.testing.assert_close(future[:, -1], torch.from_numpy(thrown[12]))
+    assert held == 1  # only its first position is frame 0
+    generator = torch.Generator().manual_seed(0)
+    onset = [sims.sample(1, generator, onset_share=1.0, onset_frames=4).held.max().item() for _ in range(40)]
+    assert max(onset) == 6  # the scene at rest still gives fully held windows
 
 
 def test_stride_two_statistics_are_those_of_two_frame_differences(tmp_path):

@@ -5,7 +5,9 @@ and its target is frame t + history K; every start frame t that fits is a window
 frame is used (K = 1: consecutive frames). Windows also start before frame 0, down to
 t = -(history - 1) K, with frame 0 standing for every frame before it: the MPM starts from rest
 (after its geostatic relaxation), so these are the windows of a scene at rest, which is how
-every user's rollout starts (runout.gns.rollout). With `static_tail` F, a simulation's windows
+every user's rollout starts (runout.gns.rollout). Only a simulation that starts at rest gets them:
+one whose soil moves at its start (family a's thrown blocks, up to 15 m/s) would otherwise be
+asked to jump from standing still to full speed in one step (START_SPEED). With `static_tail` F, a simulation's windows
 end F frames after its last frame in which a soil point moved faster than STILL_SPEED: the
 steps go to motion rather than to a deposit that has stopped, and F frames of it remain so the
 model still learns to keep a deposit still. A sample for n pushforward steps (runout.train)
@@ -32,6 +34,11 @@ from runout.simfiles import read_simulations
 
 
 STILL_SPEED = 0.05  # m/s: soil slower than this has stopped (as the rollout's default --stop-speed)
+# m/s: a simulation whose fastest soil point covers more than this over its first frame started
+# moving (a thrown block) rather than from rest. From rest the fastest point of every solver-6
+# slope travels at most 1.04 m/s over the first frame (data/ft8, data/base8), and a block thrown
+# fast enough to matter covers more than 1.6 m/s; 2 m/s lies between them.
+START_SPEED = 2.0
 
 
 @dataclass
@@ -69,6 +76,8 @@ class Simulations:
         ]
         self.rest_windows = rest_windows
         self.frame_dt = frame_dt  # s between the dataset's frames
+        # which simulations start at rest, so that windows before their frame 0 are theirs
+        self.starts_at_rest = [_first_step(p, t) <= START_SPEED * frame_dt for p, t in zip(self.positions, self.particle_type)]
         self.static_tail = static_tail
         self.last_moving = (None if static_tail is None else  # one pass over every frame, only when it is used
                             [_last_moving_frame(p, t, STILL_SPEED * frame_dt) for p, t in zip(self.positions, self.particle_type)])
@@ -81,8 +90,13 @@ class Simulations:
 
     @property
     def first_start(self) -> int:
-        """The earliest window start frame: -(history - 1) K with rest windows, else 0."""
+        """The earliest window start frame of a simulation that starts at rest: -(history - 1) K
+        with rest windows, else 0."""
         return -(self.history - 1) * self.stride if self.rest_windows else 0
+
+    def _first_start(self, sim: int) -> int:
+        """The earliest window start frame of simulation `sim` (0 unless it starts at rest)."""
+        return self.first_start if self.starts_at_rest[sim] else 0
 
     def _index_windows(self, stride: int) -> None:
         self.stride = stride
@@ -106,7 +120,7 @@ class Simulations:
             span = (self.history + unroll) * self.stride  # frames from a window's first position to its target
             first = [0]
             for sim in range(len(self.positions)):
-                first.append(first[-1] + max(self._usable_frames(sim) - span - self.first_start, 0))
+                first.append(first[-1] + max(self._usable_frames(sim) - span - self._first_start(sim), 0))
             self._first_window[unroll] = first
         return self._first_window[unroll]
 
@@ -179,11 +193,19 @@ class Simulations:
         window k; held: how many of its leading positions are frame 0 (0 for a start after it)."""
         first = self._windows(unroll)
         sim = bisect.bisect_right(first, k) - 1
-        t = k - first[sim] + self.first_start  # start frame; frame 0 stands for the frames before it
+        t = k - first[sim] + self._first_start(sim)  # start frame; frame 0 stands for the frames before it
         index = (t + self.stride * torch.arange(self.history + unroll + 1)).clamp(min=0)
         frames = self.positions[sim][index.to(self.positions[sim].device)].transpose(0, 1)  # [N, history + unroll + 1, 2]
         held = int((index[: self.history] == 0).sum())
         return frames[:, : self.history], frames[:, self.history :], self.particle_type[sim], self.material[sim], held
+
+
+def _first_step(positions: torch.Tensor, particle_type: torch.Tensor) -> float:
+    """The farthest any soil point moves between frames 0 and 1 (m; 0 for a single frame)."""
+    soil = particle_type != PARTICLE_TYPE_KINEMATIC
+    if positions.shape[0] < 2 or not bool(soil.any()):
+        return 0.0
+    return float((positions[1, soil] - positions[0, soil]).norm(dim=-1).max())
 
 
 def _last_moving_frame(positions: torch.Tensor, particle_type: torch.Tensor, still: float) -> int:
