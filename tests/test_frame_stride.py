@@ -2,6 +2,7 @@
 differences, one rollout frame every K dataset frames, compared with the MPM at its times."""
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ import torch
 from runout.compare import comparison_metrics
 from runout.errors import InputError
 from runout.gns.checkpoint import load_simulator, read_checkpoint, save_checkpoint
-from runout.gns.rollout import rollout_trajectory, scene_at_rest
+from runout.gns.rollout import rollout_trajectory, scene_at_rest, start_window
 from runout.gns.samples import Simulations
 from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
@@ -20,7 +21,7 @@ from runout.metrics import at_common_times, compare, position_mse
 from runout.scene import scene_from_dict
 from runout.simfiles import read_simulations, statistics, write_simulations
 from runout.train import train
-from runout.trajectory import trajectory_from_features
+from runout.trajectory import first_frame_velocity, trajectory_from_features
 from test_cli_exits import one_sentence, run
 from test_gns_synthetic import BOUNDS, FRAME_DT, falling_block, write_dataset
 from test_gns_train import config, losses
@@ -64,12 +65,11 @@ def test_windows_at_rest_start_before_frame_zero_at_stride_two(tmp_path):
     torch.testing.assert_close(future[:, -1], positions[9])
 
 
-def test_a_thrown_block_gets_no_windows_before_its_first_frame(tmp_path):
-    """Family a throws blocks at up to 15 m/s: holding such a scene's frame 0 before it would ask
-    the model for a jump from standing still to full speed in one step, so only a simulation
-    that starts at rest gets windows before frame 0."""
-    from runout.gns.samples import START_SPEED
-
+def test_a_thrown_block_stands_before_its_first_frame_where_its_velocity_puts_it(tmp_path):
+    """Family a throws blocks at up to 15 m/s: held at frame 0, such a scene would ask the model
+    for a jump from standing still to full speed in one step. Before frame 0 each point stands
+    where its frame-0 velocity puts it, as a rollout's start window places it; a scene at rest
+    keeps frame 0 held."""
     at_rest = falling_block(20, 0.5)
     positions, ptype, material = falling_block(20, 0.5)
     soil = ptype != 3
@@ -78,15 +78,47 @@ def test_a_thrown_block_gets_no_windows_before_its_first_frame(tmp_path):
     write_simulations(tmp_path / "train.npz", [at_rest, (thrown, ptype, material)])
     sims = Simulations(tmp_path / "train.npz", torch.device("cpu")).with_stride(2)
     assert sims.starts_at_rest == [True, False]
-    assert 10.0 > START_SPEED > float(np.abs(np.diff(at_rest[0][:2], axis=0)).max()) / FRAME_DT
-    assert sims.n_windows == (20 - 6 * 2 + 5 * 2) + (20 - 6 * 2)  # starts -10..7, then 0..7
-    window, future, _, _, held = sims._window(18)  # the thrown block's first window starts at its frame 0
-    torch.testing.assert_close(window, torch.from_numpy(thrown[0:11:2]).transpose(0, 1))
-    torch.testing.assert_close(future[:, -1], torch.from_numpy(thrown[12]))
-    assert held == 1  # only its first position is frame 0
-    generator = torch.Generator().manual_seed(0)
-    onset = [sims.sample(1, generator, onset_share=1.0, onset_frames=4).held.max().item() for _ in range(40)]
-    assert max(onset) == 6  # the scene at rest still gives fully held windows
+    assert sims.n_windows == 2 * (20 - 6 * 2 + 5 * 2)  # starts -10..7 of each
+    velocity = first_frame_velocity(thrown[0], thrown[1], ptype, FRAME_DT)  # m/s
+    assert velocity[soil, 0] == pytest.approx(10.0, abs=0.2) and not velocity[~soil].any()  # m/s; the block also spreads
+    window, future, _, _, held = sims._window(18 + 7)  # the thrown block's start frame -3: frames -3, -1, 1, 3, 5, 7
+    expected = thrown[[0, 0, 1, 3, 5, 7]].astype(np.float64)
+    expected[0] -= 3 * FRAME_DT * velocity
+    expected[1] -= 1 * FRAME_DT * velocity
+    torch.testing.assert_close(window, torch.from_numpy(expected.astype(np.float32)).transpose(0, 1))
+    torch.testing.assert_close(future[:, -1], torch.from_numpy(thrown[9]))
+    assert held == 2  # frames -3 and -1, which a rollout is given exactly
+    window, _, _, _, held = sims._window(18)  # its window entirely before frame 0: the rollout's start
+    start = start_window(thrown[0], velocity, 6, 2 * FRAME_DT)
+    torch.testing.assert_close(window, torch.from_numpy(start).transpose(0, 1))
+    assert held == 6
+    torch.testing.assert_close(sims._window(0)[0], torch.from_numpy(at_rest[0][[0] * 6]).transpose(0, 1))  # at rest: held
+
+
+def test_a_scene_with_a_region_velocity_starts_its_rollout_at_that_velocity():
+    scene = scene_from_dict({
+        "name": "throw", "domain": {"width": 100.0, "height": 60.0, "cell_size": 4.0},
+        "materials": {"ground": {"model": "elastic"}, "rock": {"friction_angle": 40.0}},
+        "regions": [
+            {"material": "ground", "polygon": [[0, 0], [100, 0], [100, 8], [0, 8]], "fixed": True, "velocity": [3.0, 0.0]},
+            {"material": "rock", "polygon": [[20, 20], [40, 20], [40, 40], [20, 40]], "velocity": [6.0, -2.0]},
+        ],
+    })
+    start = scene_at_rest(scene)
+    soil = start.soil
+    np.testing.assert_array_equal(start.start_velocity()[soil], np.tile([6.0, -2.0], (int(soil.sum()), 1)))
+    assert not start.start_velocity()[~soil].any()  # fixed ground does not move, whatever its region says
+    window = start_window(start.positions[0], start.start_velocity(), 6, 2 * FRAME_DT)  # m
+    np.testing.assert_allclose(window[-1], start.positions[0])
+    np.testing.assert_allclose(window[0, soil] - window[-1, soil], np.tile([-6.0, 2.0], (int(soil.sum()), 1)) * 10 * FRAME_DT,
+                               atol=1e-4)  # 5 steps of 2 frames back along the velocity
+    np.testing.assert_array_equal(window[:, ~soil], np.repeat(start.positions[:1, ~soil], 6, axis=0))
+    truth = replace(start, positions=np.stack([start.positions[0], start.positions[0] + [0.3, 0.0]]), initial_velocity=None)
+    estimated = truth.start_velocity()  # a trajectory without a scene: its first frame's motion, as a throw under gravity
+    np.testing.assert_allclose(estimated[soil], np.tile([0.3 / FRAME_DT, 0.5 * 9.81 * FRAME_DT], (int(soil.sum()), 1)), rtol=1e-5)
+    assert not estimated[~soil].any()
+    slow = replace(truth, positions=np.stack([start.positions[0], start.positions[0] + [0.05, 0.0]]))  # 1.3 m/s: a slope failing from rest
+    assert not slow.start_velocity().any()
 
 
 def test_stride_two_statistics_are_those_of_two_frame_differences(tmp_path):

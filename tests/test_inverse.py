@@ -229,6 +229,27 @@ def test_ad_gradient_equals_central_differences(toy):
     np.testing.assert_allclose(ad, fd, rtol=0.02)
 
 
+def test_the_inverse_rollout_starts_a_thrown_region_at_its_velocity(tmp_path):
+    """A region with an initial velocity enters the inverse's rollout at that velocity, as it
+    enters `runout rollout`'s (runout.gns.rollout.start_window): a target rolled out from the
+    scene is met exactly at the true strengths, and not by a start from rest."""
+    from runout.gns.rollout import rollout_trajectory, scene_at_rest
+
+    simulator = tiny_gns()
+    thrown = json.loads(json.dumps(TOY_SCENE))
+    thrown["regions"][1]["velocity"] = [8.0, 3.0]  # m/s, the "left" block
+    scene = scene_from_dict(thrown, "toy")
+    save_scene(scene, tmp_path / "toy.toml")
+    target = rollout_trajectory(simulator, scene_at_rest(scene), STEPS + 1, stop_speed=None)
+    from_rest = rollout_trajectory(simulator, scene_at_rest(scene_from_dict(TOY_SCENE, "toy")), STEPS + 1, stop_speed=None)
+    assert np.abs(target.positions[-1] - from_rest.positions[-1]).max() > 0.1  # m: the velocity matters
+    save_trajectory(target, tmp_path / "target")
+    spec, observation, problem = problem_for(write_spec(tmp_path, "[parameters.left]\nc = { lower = 0.0, upper = 100.0 }"))
+    np.testing.assert_array_equal(observation.initial_velocity[observation.material_id == 0], [[8.0, 3.0]] * int((observation.material_id == 0).sum()))
+    assert problem.evaluate(np.array([20.0])).loss < 1e-10  # m^2: the truth, c = 20 kPa
+    assert problem.evaluate(np.array([60.0])).loss > 1e-6
+
+
 def test_checkpointing_keeps_memory_nearly_flat_in_rollout_length(toy):
     """CPU measure: peak bytes held for the backward pass (saved-tensor hooks, runout.inverse.memory)."""
     simulator = tiny_gns()

@@ -90,6 +90,16 @@ def _check(frames, case: Case, step, stop_speed, min_frames) -> bool:
     return stop_speed is not None and len(frames) >= min_frames and fastest < stop_speed
 
 
+def start_window(initial: np.ndarray, velocity: np.ndarray, history: int, step_dt: float) -> np.ndarray:
+    """[history, N, 2] float32 m: the window a rollout starts from, the scene at frame 0 (initial
+    [N, 2] m) and before it each point moving at its frame-0 velocity ([N, 2] m/s), one model step
+    (step_dt s) apart; a point at rest (zero velocity) is frame 0 held, as the scene at rest is.
+    Training draws the same windows (runout.gns.samples), so a rollout starts where it learned to."""
+    lag = step_dt * np.arange(history - 1, -1, -1, dtype=np.float64)  # s before frame 0: (history - 1) K dt, ..., 0
+    window = np.asarray(initial, dtype=np.float64)[None] - lag[:, None, None] * np.asarray(velocity, dtype=np.float64)[None]
+    return window.astype(np.float32)
+
+
 def material_tensor(simulator: Simulator, traj: Trajectory) -> torch.Tensor:
     """[N, k] material features of a trajectory, in the width the simulator expects."""
     return torch.from_numpy(traj.material_features(simulator.schema.material_width))
@@ -108,7 +118,9 @@ def rollout_trajectory(
     K, the last at or beyond frame n_frames - 1; stop_speed in m/s (None: run all frames).
 
     from_rest (the default, and how every scene starts): the window is `initial`'s frame 0
-    repeated, the points at rest, and the rollout's frame 0 is that frame. Otherwise the window
+    repeated, the points at rest, and the rollout's frame 0 is that frame; points that move at
+    frame 0 (initial.start_velocity(): a scene region's `velocity`, or a trajectory's first-frame
+    motion faster than START_SPEED) enter the window at that velocity (start_window). Otherwise the window
     is `initial`'s frames 0, K, ..., (history - 1) K (the public GNS's start from simulated
     frames), and they are the rollout's first frames."""
     return rollout_trajectories(simulator, [initial], n_frames, stop_speed, progress, from_rest)[0]
@@ -136,7 +148,8 @@ def rollout_trajectories(
     if len({s.frame_dt for s in starts}) > 1:
         raise InputError(f"{', '.join(t.name for t in initials)}: frames {sorted({t.frame_dt for t in initials})} s apart; "
                          "scenes rolled out together need one frame time step.")
-    windows = [np.repeat(s.positions[:1], history, axis=0) if from_rest else s.positions[:history] for s in starts]
+    windows = [start_window(s.positions[0], initial.start_velocity(), history, s.frame_dt) if from_rest
+               else s.positions[:history] for initial, s in zip(initials, starts)]
     sizes = [t.n_points for t in initials]
     one = len(initials) == 1  # one scene: one graph and one domain, as always
     bounds = initials[0].bounds if one else np.concatenate([np.repeat(t.bounds[None], t.n_points, 0) for t in initials])
@@ -167,11 +180,16 @@ def rollout_trajectories(
 
 
 def scene_at_rest(scene: Scene, frames: int = 1) -> Trajectory:
-    """`frames` identical frames of the scene's filled points: the scene at rest, where
-    rollout_trajectory starts (from_rest) every scene."""
+    """`frames` identical frames of the scene's filled points: the scene at frame 0, where
+    rollout_trajectory starts (from_rest) every scene, with its regions' velocities
+    (initial_velocity, m/s; zero for kinematic points)."""
     points = fill_points(scene)
     positions = np.repeat(points.position[None].astype(np.float32), frames, axis=0)
-    return trajectory_for_scene(scene, positions, points.particle_type, points.material_id)
+    traj = trajectory_for_scene(scene, positions, points.particle_type, points.material_id)
+    velocity = np.asarray(points.velocity, dtype=np.float64).copy()
+    velocity[~traj.soil] = 0.0
+    traj.initial_velocity = velocity
+    return traj
 
 
 def at_model_spacing(

@@ -5,9 +5,10 @@ and its target is frame t + history K; every start frame t that fits is a window
 frame is used (K = 1: consecutive frames). Windows also start before frame 0, down to
 t = -(history - 1) K, with frame 0 standing for every frame before it: the MPM starts from rest
 (after its geostatic relaxation), so these are the windows of a scene at rest, which is how
-every user's rollout starts (runout.gns.rollout). Only a simulation that starts at rest gets them:
-one whose soil moves at its start (family a's thrown blocks, up to 15 m/s) would otherwise be
-asked to jump from standing still to full speed in one step (START_SPEED). With `static_tail` F, a simulation's windows
+every user's rollout starts (runout.gns.rollout). Points that move at frame 0 (family a's thrown
+blocks, up to 15 m/s: runout.trajectory.first_frame_velocity) stand before it where that
+velocity puts them, x(t) = x(0) + t v(0), as a rollout's start_window places them; held at
+frame 0 they would ask for a jump from standing still to full speed in one step. With `static_tail` F, a simulation's windows
 end F frames after its last frame in which a soil point moved faster than STILL_SPEED: the
 steps go to motion rather than to a deposit that has stopped, and F frames of it remain so the
 model still learns to keep a deposit still. A sample for n pushforward steps (runout.train)
@@ -31,14 +32,10 @@ from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
 from runout.gns.schema import HISTORY, FeatureSchema, material_names_for_width
 from runout.simfiles import read_simulations
+from runout.trajectory import first_frame_velocity
 
 
 STILL_SPEED = 0.05  # m/s: soil slower than this has stopped (as the rollout's default --stop-speed)
-# m/s: a simulation whose fastest soil point covers more than this over its first frame started
-# moving (a thrown block) rather than from rest. From rest the fastest point of every solver-6
-# slope travels at most 1.04 m/s over the first frame (data/ft8, data/base8), and a block thrown
-# fast enough to matter covers more than 1.6 m/s; 2 m/s lies between them.
-START_SPEED = 2.0
 
 
 @dataclass
@@ -76,8 +73,13 @@ class Simulations:
         ]
         self.rest_windows = rest_windows
         self.frame_dt = frame_dt  # s between the dataset's frames
-        # which simulations start at rest, so that windows before their frame 0 are theirs
-        self.starts_at_rest = [_first_step(p, t) <= START_SPEED * frame_dt for p, t in zip(self.positions, self.particle_type)]
+        # m per dataset frame: each point's velocity at frame 0 (zero for points at rest), which
+        # places it in the frames before frame 0 of a window from rest
+        self.start_step = [
+            torch.from_numpy(first_frame_velocity(p[0].cpu().numpy(), p[1].cpu().numpy(), t.cpu().numpy(), frame_dt)
+                             * frame_dt).to(p) if p.shape[0] > 1 else torch.zeros_like(p[0])
+            for p, t in zip(self.positions, self.particle_type)
+        ]
         self.static_tail = static_tail
         self.last_moving = (None if static_tail is None else  # one pass over every frame, only when it is used
                             [_last_moving_frame(p, t, STILL_SPEED * frame_dt) for p, t in zip(self.positions, self.particle_type)])
@@ -90,13 +92,13 @@ class Simulations:
 
     @property
     def first_start(self) -> int:
-        """The earliest window start frame of a simulation that starts at rest: -(history - 1) K
-        with rest windows, else 0."""
+        """The earliest window start frame: -(history - 1) K with rest windows, else 0."""
         return -(self.history - 1) * self.stride if self.rest_windows else 0
 
-    def _first_start(self, sim: int) -> int:
-        """The earliest window start frame of simulation `sim` (0 unless it starts at rest)."""
-        return self.first_start if self.starts_at_rest[sim] else 0
+    @property
+    def starts_at_rest(self) -> list[bool]:
+        """Whether each simulation starts with every point at rest (no velocity at frame 0)."""
+        return [not bool(step.any()) for step in self.start_step]
 
     def _index_windows(self, stride: int) -> None:
         self.stride = stride
@@ -120,7 +122,7 @@ class Simulations:
             span = (self.history + unroll) * self.stride  # frames from a window's first position to its target
             first = [0]
             for sim in range(len(self.positions)):
-                first.append(first[-1] + max(self._usable_frames(sim) - span - self._first_start(sim), 0))
+                first.append(first[-1] + max(self._usable_frames(sim) - span - self.first_start, 0))
             self._first_window[unroll] = first
         return self._first_window[unroll]
 
@@ -190,22 +192,21 @@ class Simulations:
 
     def _window(self, k: int, unroll: int = 0):
         """(window [N, history, 2], future [N, unroll + 1, 2], particle_type, material, held) of
-        window k; held: how many of its leading positions are frame 0 (0 for a start after it)."""
+        window k; held: how many of its leading positions are frame 0 or before it (0 for a start
+        after it): the scene's start, which a rollout is given exactly."""
         first = self._windows(unroll)
         sim = bisect.bisect_right(first, k) - 1
-        t = k - first[sim] + self._first_start(sim)  # start frame; frame 0 stands for the frames before it
-        index = (t + self.stride * torch.arange(self.history + unroll + 1)).clamp(min=0)
-        frames = self.positions[sim][index.to(self.positions[sim].device)].transpose(0, 1)  # [N, history + unroll + 1, 2]
+        t = k - first[sim] + self.first_start  # start frame; frame 0 stands for the frames before it
+        raw = t + self.stride * torch.arange(self.history + unroll + 1)  # dataset frames, negative before frame 0
+        index = raw.clamp(min=0)
+        device = self.positions[sim].device
+        frames = self.positions[sim][index.to(device)]  # [history + unroll + 1, N, 2]
+        if t < 0:  # before frame 0 each point stands where its frame-0 velocity puts it (at rest: frame 0)
+            before = (raw - index).to(device=device, dtype=frames.dtype)  # frames before frame 0 (<= 0)
+            frames = frames + before[:, None, None] * self.start_step[sim][None]
+        frames = frames.transpose(0, 1)  # [N, history + unroll + 1, 2]
         held = int((index[: self.history] == 0).sum())
         return frames[:, : self.history], frames[:, self.history :], self.particle_type[sim], self.material[sim], held
-
-
-def _first_step(positions: torch.Tensor, particle_type: torch.Tensor) -> float:
-    """The farthest any soil point moves between frames 0 and 1 (m; 0 for a single frame)."""
-    soil = particle_type != PARTICLE_TYPE_KINEMATIC
-    if positions.shape[0] < 2 or not bool(soil.any()):
-        return 0.0
-    return float((positions[1, soil] - positions[0, soil]).norm(dim=-1).max())
 
 
 def _last_moving_frame(positions: torch.Tensor, particle_type: torch.Tensor, still: float) -> int:

@@ -9,7 +9,7 @@ import torch
 
 from runout.errors import InputError
 from runout.gns.checkpoint import load_simulator
-from runout.gns.rollout import rollout
+from runout.gns.rollout import rollout, start_window
 from runout.gns.simulator import Simulator
 from runout.inverse.observation import Observation
 from runout.inverse.problem import ForwardModel, InverseProblem
@@ -20,14 +20,16 @@ from runout.mpm.setup import material_table
 def gns_forward(
     simulator: Simulator, observation: Observation, bounds: np.ndarray, checkpoint: bool = True, progress: bool = False
 ) -> ForwardModel:
-    """A rollout from the scene at rest (its window the initial positions repeated, frame 0) for
+    """A rollout from the scene at frame 0 (its window the initial positions repeated, points that
+    move at frame 0 entering it at their velocity: runout.gns.rollout.start_window) for
     observation.model_steps steps, each step recomputed in the backward pass when `checkpoint`;
     returns the frames observed, [F, N, 2] (m), frame f being step f / frame stride. `progress`
     shows a bar over the forward steps."""
     device = simulator.vel_mean.device
-    initial = torch.tensor(observation.initial, dtype=torch.float32, device=device)
     history = simulator.schema.history
-    window = initial[None].expand(history, -1, -1)
+    velocity = np.zeros_like(observation.initial) if observation.initial_velocity is None else observation.initial_velocity
+    step_dt = observation.frame_dt * simulator.frame_stride  # s per model step
+    window = torch.from_numpy(start_window(observation.initial, velocity, history, step_dt)).to(device)
     particle_type = torch.as_tensor(observation.particle_type, device=device)
     frames = torch.tensor(observation.model_frames, device=device)
 

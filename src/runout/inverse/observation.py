@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runout.defaults import PARTICLE_TYPE_KINEMATIC
+from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
 from runout.inverse.spec import InverseSpec, LossSpec
 from runout.npz import read_npy
@@ -32,6 +32,8 @@ class Observation:
     material_id: np.ndarray  # [N] index into spec.scene.material_names
     true_values: list[float] | None  # free parameters that made the target, when known
     stride: int = 1  # dataset frames per step of the model rolled out (a GNS's frame stride)
+    initial_velocity: np.ndarray | None = None  # [N, 2] m/s at frame 0 (the scene's region velocities); None: at rest
+    frame_dt: float = FRAME_DT  # s between the dataset frames that `frames` count
 
     @property
     def model_steps(self) -> int:
@@ -83,6 +85,8 @@ def load_observation(spec: InverseSpec, scene_name: str = "the scene", stride: i
         material_id=points.material_id,
         true_values=true_values,
         stride=stride,
+        frame_dt=spec.scene.time.frame_dt,
+        initial_velocity=np.where((points.particle_type == PARTICLE_TYPE_KINEMATIC)[:, None], 0.0, points.velocity),
     )
 
 
