@@ -74,12 +74,15 @@ def test_quick_demo_writes_the_forward_and_inverse_pictures(tmp_path):
     out = tmp_path / "demo"
     result = CliRunner().invoke(app, ["demo", "--out", str(out), "--model", str(model), "--quick"])
     assert result.exit_code == 0, result.output
-    for name in ("forward/animation.gif", "forward/final.png", "inverse/result/loss.png",
+    for name in ("forward/animation.gif", "forward/final.png", "forward/metrics.json", "inverse/result/loss.png",
                  "inverse/result/parameters.png", "inverse/result/deposit.png", "inverse/result/history.csv",
                  "inverse/mpm_ad/parameters.png", "inverse/mpm_ad/history.csv"):
         assert (out / name).stat().st_size > 0, name
         assert str(out / name) in result.output or name.endswith(".csv")
     assert "1080 points at 10 m cells" in result.output  # the slope filled at the model's spacing
+    metrics = json.loads((out / "forward" / "metrics.json").read_text())  # the GNS beside the MPM of the same points
+    assert metrics["runout_left_m"]["mpm"] > 0 and f"left front {metrics['runout_left_m']['gns']:.1f} m" in result.output
+    assert len(list((out / "forward").glob("mpm_*/trajectory.npz"))) == 1
     assert "yardstick" in result.output and "(GNS: " in result.output  # the MPM-AD answer beside the GNS one
     assert len(list((out / "inverse").glob("mpm_*/trajectory.npz"))) == 1
     again = CliRunner().invoke(app, ["demo", "--out", str(out), "--model", str(model), "--quick"])

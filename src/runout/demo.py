@@ -1,7 +1,9 @@
 """`runout demo`: a forward GNS runout and an inverse back-calculation with the shipped model.
 
-(a) The four-layer slope (examples/four_layer_slope.toml) fails from rest under the GNS:
-    animation.gif and final.png.
+(a) The four-layer slope (examples/four_layer_slope.toml) fails from rest under the GNS and,
+    beside it, under the MPM at the same point spacing (the truth, cached): animation.gif (MPM
+    above GNS), final.png (MPM left, GNS right) and metrics.json (runout_compare's measures:
+    both fronts, deposit overlap, position error; the errors are printed too).
 (b) The small dam (examples/small_dam.toml) collapses in the MPM (the target, cached); the
     inverse analysis back-calculates the undrained strength c of its lower downstream shell
     from the final deposit with the GNS: history.csv, loss.png, parameters.png, deposit.png.
@@ -14,6 +16,7 @@ training data), so a model trained at coarse cells sees graphs like those it was
 
 from __future__ import annotations
 
+import json
 import shutil
 import time
 from collections.abc import Callable
@@ -24,10 +27,11 @@ from runout.errors import InputError
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import at_model_spacing, rollout_trajectory, scene_at_rest
 from runout.inverse import invert, summary_lines
-from runout.metrics import runout_extent
+from runout.compare import comparison_metrics
+from runout.metrics import at_common_times, runout_extent
 from runout.mpm.cache import MpmCache
 from runout.outputs import prepare_folder
-from runout.plots import save_animation, save_frame
+from runout.plots import save_animation, save_side_by_side
 from runout.scene import load_scene, save_scene
 from runout.trajectory import load_trajectory
 
@@ -55,23 +59,33 @@ def run_demo(out: Path, model: Path, examples: Path, quick: bool = False, force:
     return [*forward, *inverse]
 
 
-def _forward(simulator, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, Path]:
-    """GNS runout of a scene from rest: animation.gif and final.png."""
+def _forward(simulator, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, Path, Path]:
+    """GNS runout of a scene from rest beside the MPM's: animation.gif, final.png, metrics.json."""
     scene = at_model_spacing(load_scene(scene_path), simulator, scene_path.name, log)
-    start = scene_at_rest(scene)
-    frames = QUICK_FRAMES if quick else FORWARD_FRAMES
+    scene = scene.with_frames(QUICK_FRAMES if quick else FORWARD_FRAMES)
+    out.mkdir(parents=True, exist_ok=True)
+    truth = load_trajectory(_mpm_target(scene, out, log))
+    truth.name = f"{scene.name} (MPM)"
     t0 = time.perf_counter()
-    traj = rollout_trajectory(simulator, start, frames, stop_speed=0.05)
+    traj = rollout_trajectory(simulator, scene_at_rest(scene), truth.n_frames, stop_speed=None)  # every frame the MPM has
     traj.name = f"{scene.name} (GNS)"
     log(
         f"forward: {traj.n_points} points at {scene.domain.cell_size:g} m cells, {traj.n_frames} frames "
-        f"({traj.n_frames * traj.frame_dt:.1f} s of flow) in {time.perf_counter() - t0:.0f} s; "
-        f"deposit spans {runout_extent(traj, -1):.0f} m"
+        f"({(traj.n_frames - 1) * traj.frame_dt:.1f} s of flow) in {time.perf_counter() - t0:.0f} s; "
+        f"deposit spans {runout_extent(traj, -1):.0f} m (MPM {runout_extent(truth, -1):.0f} m)"
     )
-    out.mkdir(parents=True, exist_ok=True)
-    gif = save_animation([traj], out / "animation.gif", labels=["GNS"], stride=None if not quick else 6)
-    final = save_frame(traj, traj.n_frames - 1, out / "final.png")
-    return gif, final
+    metrics = comparison_metrics(truth, traj, scene.domain.cell_size)
+    for side in ("left", "right"):
+        m = metrics[f"runout_{side}_m"]
+        error = "" if m["ape_percent"] is None else f", error {m['ape_percent']:.1f} %"
+        log(f"  {side} front {m['gns']:.1f} m from the axis (MPM {m['mpm']:.1f} m{error})")
+    log(f"  deposit overlap (IoU of {scene.domain.cell_size:g} m cells) {metrics['deposit_iou']:.2f}; "
+        f"mean position error {metrics['position_mse_mean_m2'] ** 0.5:.1f} m (root of the mean square)")
+    (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
+    truth, traj = at_common_times(truth, traj)
+    gif = save_animation([truth, traj], out / "animation.gif", labels=["MPM", "GNS"], stride=None if not quick else 6)
+    final = save_side_by_side([(truth, "MPM"), (traj, "GNS")], out / "final.png")
+    return gif, final, out / "metrics.json"
 
 
 def _inverse(simulator, model: Path, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, ...]:
@@ -112,12 +126,12 @@ def _mpm_target(scene, out: Path, log: Log) -> Path:
     """The scene's MPM trajectory, cached in out/mpm_<key of the solver version and scene>."""
     cache = MpmCache(out, prefix="mpm_")
     if cache.has(scene):
-        log(f"target: the MPM run cached in {cache.path(scene)}")
+        log(f"{scene.name}: the MPM run cached in {cache.path(scene)}")
         return cache.path(scene)
     t0 = time.perf_counter()
     folder = cache.ensure([scene], progress=False)[0]
     traj = load_trajectory(folder)
-    log(f"target: MPM, {traj.n_points} points, {traj.n_frames} frames in {time.perf_counter() - t0:.0f} s")
+    log(f"{scene.name}: MPM, {traj.n_points} points, {traj.n_frames} frames in {time.perf_counter() - t0:.0f} s")
     return folder
 
 

@@ -28,6 +28,6 @@ def demo(
 
     t0 = time.perf_counter()
     pictures = run_demo(out, model, examples, quick, force, log=typer.echo)
-    typer.echo(f"demo done in {time.perf_counter() - t0:.0f} s. Pictures:")
+    typer.echo(f"demo done in {time.perf_counter() - t0:.0f} s. Results:")
     for path in pictures:
         typer.echo(f"  {path}")
