@@ -5,12 +5,13 @@ ranks of one thread each (DistributedDataParallel, as torchrun runs `runout trai
 connectivity radius (in point spacings; the default is 2.3).
 
 Each configuration trains the recipe's network (latent 64, hidden 64, 5 message-passing
-steps, batch 2 graphs per process) on real windows of a dataset (default data/ft8) with the
+steps, batch 2 graphs per process unless a bN token says otherwise) on real windows of a dataset (default data/ft8) with the
 real training step (runout.train._train_step), after --warmup steps (compilation included
 there), and prints graphs per second: steps/s times graphs per step (2 per process).
 Measure on a quiet machine; on a loaded one, say so beside the figure.
 
     .venv/bin/python bench/train_throughput.py --data data/ft8 --configs bf16:1 bf16+keep:1 bf16+keep:2 gloo+bf16+keep:2
+    .venv/bin/python bench/train_throughput.py --configs bf16+keep:2 gloo+bf16+keep+b1:2   # the campaign's batch of 2, two ways
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ def measure(data_dir: Path, kind: str, steps: int, warmup: int, rank: int = 0, w
     device = torch.device("cpu")
     tokens = set(kind.split("+"))
     radius = [float(t[1:]) for t in tokens if t.startswith("r")]
+    batch = [int(t[1:]) for t in tokens if t.startswith("b") and t[1:].isdigit()]
     simulator, data, bounds = build(data_dir, radius[0] if radius else DEFAULT_SPACINGS, device)
     model = simulator
     if "compile" in tokens:
@@ -58,7 +60,7 @@ def measure(data_dir: Path, kind: str, steps: int, warmup: int, rank: int = 0, w
     if world > 1:
         model = torch.nn.parallel.DistributedDataParallel(simulator)
     cfg = TrainConfig(data=data_dir, out=Path("."), bf16="bf16" in tokens, noise=0.3, exact_rest=True,
-                      checkpoint_layers="keep" not in tokens)
+                      checkpoint_layers="keep" not in tokens, batch_size=batch[0] if batch else 2)
     optimizer = torch.optim.Adam(simulator.parameters(), lr=1e-4)
     ctx = Context(device, rank, world)
     for step in range(warmup):
@@ -77,6 +79,11 @@ def _rank(rank: int, world: int, data_dir: Path, kind: str, steps: int, warmup: 
     dist.destroy_process_group()
 
 
+def _batch(kind: str) -> int:
+    """Graphs per step of one process: the bS token, else 2."""
+    return next((int(t[1:]) for t in kind.split("+") if t.startswith("b") and t[1:].isdigit()), 2)
+
+
 def run(data_dir: Path, config: str, steps: int, warmup: int) -> dict:
     kind, threads = config.split(":")
     threads = int(threads)
@@ -85,11 +92,11 @@ def run(data_dir: Path, config: str, steps: int, warmup: int) -> dict:
         kind = kind.removeprefix("gloo").removeprefix("+") or "eager"
         mp.spawn(_rank, args=(threads, data_dir, kind, steps, warmup, 29500 + os.getpid() % 1000, results), nprocs=threads)
         per_step = max(r["s_per_step"] for r in results.values())
-        graphs = 2 * threads
+        graphs = _batch(kind) * threads
     else:
         torch.set_num_threads(threads)
         per_step = measure(data_dir, kind, steps, warmup)["s_per_step"]
-        graphs = 2
+        graphs = _batch(kind)
     return {"config": config, "s_per_step": round(per_step, 4), "graphs_per_s": round(graphs / per_step, 3),
             "load_average": round(os.getloadavg()[0], 2)}
 
@@ -100,8 +107,8 @@ def main() -> None:
     ap.add_argument("--configs", nargs="+",
                     default=["bf16:1", "bf16+keep:1", "bf16+keep:2", "gloo+bf16+keep:2", "bf16+keep+compile:1", "bf16+keep+r1.8:1"],
                     help="KIND:THREADS, KIND tokens joined by '+': eager, bf16, keep (processor activations kept for "
-                         "backward, not recomputed), compile, rS (radius S point spacings), and a leading gloo (THREADS = "
-                         "ranks of one thread each)")
+                         "backward, not recomputed), compile, rS (radius S point spacings), bN (N graphs per step of each "
+                         "process; 2 by default), and a leading gloo (THREADS = ranks of one thread each)")
     ap.add_argument("--steps", type=int, default=100)
     ap.add_argument("--warmup", type=int, default=20)
     args = ap.parse_args()
