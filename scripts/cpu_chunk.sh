@@ -4,6 +4,7 @@
 #   bash scripts/cpu_chunk.sh pilot HOURS      # the recipe's proof model on phi + c data -> models/pilot.pt
 #   bash scripts/cpu_chunk.sh base HOURS       # friction-only base model  -> models/base.pt
 #   bash scripts/cpu_chunk.sh finetune HOURS   # phi + c, from models/base.pt -> models/slope.pt
+#   BASE=models/base-best20000.pt ONSET=0:0.4:4,12000:0.5:2 bash scripts/cpu_chunk.sh finetune HOURS
 #
 # The chunk (1) regenerates its dataset from the seed when data/ lacks it (deterministic and
 # resumable, so a killed generation continues), (2) restores the run folder from the
@@ -18,6 +19,8 @@ stage=${1:?usage: cpu_chunk.sh pilot|base|finetune HOURS}
 hours=${2:?usage: cpu_chunk.sh pilot|base|finetune HOURS}
 runout=${RUNOUT:-.venv/bin/runout}
 threads=${THREADS:-2}
+base=${BASE:-models/base.pt}   # the fine-tune's start: BASE=models/base-best20000.pt takes a run's best.pt instead
+onset=${ONSET:-}               # ONSET="0:0.4:4,12000:0.5:2" replaces the recipe's onset schedule (runout train --onset-schedule)
 
 CELL=8          # m; 2 x 2 points per cell -> 4 m point spacing
 FRAMES=480
@@ -26,6 +29,9 @@ NET=(--latent 64 --hidden 64 --message-passing-steps 5 --batch-size 2)
 # learning rate and decay, noise 0.01 of the velocity std, no noise on the scene at rest,
 # pushforward 2, a weight average, and the onset of motion drawn in three phases
 read -r -a RECIPE <<< "$("${runout%/runout}/python" -c 'from runout.train_settings import recipe_options; print(" ".join(recipe_options()))')"
+if [ -n "$onset" ]; then
+  for i in "${!RECIPE[@]}"; do if [ "${RECIPE[$i]}" = --onset-schedule ]; then RECIPE[i+1]=$onset; fi; done
+fi
 # bf16 autocast only where the CPU multiplies bfloat16 natively (AVX512-BF16 or AMX): on an
 # AVX2-only CPU PyTorch falls back to a generic kernel, 14x slower than float32 (docs/training.md)
 if grep -q -E 'avx512_bf16|amx_bf16' /proc/cpuinfo 2>/dev/null; then NET+=(--bf16); fi
@@ -35,7 +41,7 @@ case "$stage" in
   base)     data=data/base8; count=320; run=runs/base8; model=models/base.pt; stage_data=base
             init=() ;;
   finetune) data=data/ft8;   count=260; run=runs/ft8;   model=models/slope.pt; stage_data=finetune
-            init=(--init models/base.pt) ;;
+            init=(--init "$base") ;;
   *) echo "cpu_chunk.sh: the stage '$stage' is not one of pilot, base, finetune" >&2; exit 2 ;;
 esac
 log=${model%.pt}.log.jsonl
@@ -48,6 +54,9 @@ fi
 # Whether a checkpoint was trained with this recipe on solver-6 data: the recipe's settings
 # (--exact-rest among them) entered the checkpoints with it; the models committed before it
 # (solver 3, weights and Adam state) must not be continued, and a fine-tune must not start from them
+recipe_weights() {  # a start for a fine-tune needs the weights and the recipe's settings, not Adam's state
+  "${runout%/runout}/python" -c "import sys, torch; from runout.train_settings import trained_with_recipe; c = torch.load(sys.argv[1], weights_only=True, map_location='cpu'); sys.exit(not trained_with_recipe(c.get('train', {})))" "$1"
+}
 recipe_checkpoint() {
   "${runout%/runout}/python" -c "import sys, torch; from runout.train_settings import trained_with_recipe; c = torch.load(sys.argv[1], weights_only=True, map_location='cpu'); sys.exit(not ('optimizer' in c and trained_with_recipe(c.get('train', {}))))" "$1"
 }
@@ -65,8 +74,8 @@ elif [ -f "$model" ] && recipe_checkpoint "$model"; then
 elif [ -f "$model" ]; then
   echo "cpu_chunk.sh: $model predates the recipe (solver 3 or an older recipe), so this chunk starts the stage afresh in $run and replaces it at the end (git keeps the old file)" >&2
 fi
-if [ "$stage" = finetune ] && [ ${#resume[@]} -eq 0 ] && ! recipe_checkpoint models/base.pt; then
-  echo "cpu_chunk.sh: models/base.pt predates the recipe; train the base stage first (bash scripts/cpu_chunk.sh base HOURS)" >&2
+if [ "$stage" = finetune ] && [ ${#resume[@]} -eq 0 ] && ! recipe_weights "$base"; then
+  echo "cpu_chunk.sh: $base predates the recipe; train the base stage first (bash scripts/cpu_chunk.sh base HOURS)" >&2
   exit 2
 fi
 if [ ${#resume[@]} -eq 1 ]; then init=(); fi

@@ -300,3 +300,16 @@ def test_the_overburden_input_is_chosen_by_new_runs_only(tmp_path):
     assert not plain.schema.overburden
     with pytest.raises(InputError, match=r"plain/checkpoint.pt has no overburden input, so it trains only without it"):
         train(config(data, tmp_path / "tuned", steps=2, init=tmp_path / "plain" / "checkpoint.pt", overburden=True))
+
+
+def test_the_best_validated_weights_carry_the_runs_settings_and_start_a_fine_tune_at_their_step(tmp_path):
+    data = write_dataset(tmp_path / "friction")
+    train(config(data, tmp_path / "base", steps=12, valid_every=6, lr_decay_steps=100.0))
+    best = read_checkpoint(tmp_path / "base" / "best.pt")
+    assert best["step"] in (6, 12)
+    assert best["train"]["lr_decay_steps"] == 100.0 and best["train"]["steps"] == 12  # the run's settings, for provenance
+    assert "optimizer" not in best  # weights only: a start for --init, not a run to resume
+    train(config(write_dataset(tmp_path / "cohesive", width=2), tmp_path / "tuned", steps=1,
+                 init=tmp_path / "base" / "best.pt", lr_decay_steps=100.0))
+    tuned = read_checkpoint(tmp_path / "tuned" / "checkpoint.pt")
+    assert tuned["train"]["lr_step_offset"] == best["step"]  # the learning rate goes on from the best step's

@@ -503,9 +503,14 @@ def _statistics(meta: dict, data: Simulations, stride: int) -> dict:
     return meta if stride == 1 else data.with_stride(stride).moments()
 
 
+def _settings(cfg: TrainConfig) -> dict:
+    """The run's settings as plain data, stored in its checkpoints."""
+    return {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
+
+
 def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: float,
           average: WeightAverage | None = None) -> Path:
-    train_settings = {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
+    train_settings = _settings(cfg)
     weights = {"model": average.state_dict(simulator), "train_model": simulator.state_dict()} if average else {}
     return save_checkpoint(
         path, simulator, optimizer=optimizer.state_dict(), step=step, train=train_settings,
@@ -528,8 +533,8 @@ def _validate(simulator: Simulator, cfg: TrainConfig, log: "RunLog", step: int, 
     mse = sum(r["position_mse_mean_m2"] for r in results) / len(results)
     runout = sum(abs(r["runout_error"]) for r in results) / len(results)
     log.validation(step, mse, runout)
-    if mse < best:
-        save_checkpoint(Path(cfg.out) / BEST, simulator, step=step, best_valid=mse)
+    if mse < best:  # the weights, with the run's settings (provenance; --init reads lr_step_offset from them)
+        save_checkpoint(Path(cfg.out) / BEST, simulator, step=step, best_valid=mse, train=_settings(cfg))
     return min(mse, best)
 
 
