@@ -127,6 +127,11 @@ def main() -> None:
           f"(standing still {still['position_error_m']:.2f}), fronts {100 * model['front_error']:.1f} % of their travel, "
           f"extent runout error {100 * model['runout_error']:.1f} %, mean displacement {model['displacement_m']:.1f} m "
           f"(MPM {model['displacement_mpm_m']:.1f}); {metrics[key]['rollout_wall_s']:.0f} s")
+    for kind, scores in metrics[key]["by_kind"].items():
+        m, still = scores["model"], scores["standing_still"]
+        print(f"  {kind:15s} {m['scenes']:2d} scenes: position error {m['position_error_m']:.2f} m "
+              f"(standing still {still['position_error_m']:.2f}), fronts {100 * m['front_error']:.1f} %, "
+              f"extent {100 * m['runout_error']:.1f} %, mean displacement {m['displacement_m']:.1f} m (MPM {m['displacement_mpm_m']:.1f})")
 
 
 if __name__ == "__main__":

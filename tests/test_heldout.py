@@ -28,3 +28,34 @@ def test_the_truth_scores_zero_and_standing_still_scores_the_whole_travel():
 def test_fronts_that_barely_move_are_not_scored():
     t = truth()
     assert score([standing_still(t)], [t], spacing=10.0)["fronts_scored"] == 0  # the sides spread < 10 m
+
+
+def test_the_scores_are_also_averaged_by_family_and_by_start(tmp_path):
+    from runout.dataset import read_metadata
+    from runout.evaluate.heldout import evaluate_heldout
+    from runout.simfiles import read_simulations, write_metadata, write_simulations
+    from runout.train import TrainConfig, train
+    from test_gns_train import TINY
+    from test_gns_synthetic import write_dataset
+
+    data = write_dataset(tmp_path / "data", n_valid=3)
+    sims = read_simulations(data / "valid.npz")
+    positions, ptype, material = sims[2]
+    thrown = positions.copy()
+    thrown[:, ptype == 6, 0] += 0.5 * np.arange(len(positions))[:, None]  # 0.5 m per frame: soil thrown sideways at frame 0
+    write_simulations(data / "valid.npz", [sims[0], sims[1], (thrown, ptype, material)])
+    meta = read_metadata(data)
+    meta.update(scene_families=["b", "c", "c", "a", "a", "d", "c"], splits={"train": [0, 1, 3], "valid": [4, 2, 6]})
+    write_metadata(data / "metadata.json", meta)
+    model = train(TrainConfig(data=data, out=tmp_path / "run", steps=1, network=TINY, valid_every=0, checkpoint_layers=False))
+
+    result = evaluate_heldout(model, data, "valid", count=3)
+    kinds = result["by_kind"]
+    assert set(kinds) == {"family a", "family c", "starts at rest", "starts thrown"}
+    assert kinds["family c"]["model"]["scenes"] == 2 and kinds["family a"]["model"]["scenes"] == 1
+    assert kinds["starts thrown"]["model"]["scenes"] == 1 and kinds["starts at rest"]["model"]["scenes"] == 2
+    scenes = result["model"]["per_scene"]
+    assert kinds["family a"]["model"]["position_error_m"] == pytest.approx(scenes[0]["position_error_m"])
+    assert kinds["starts thrown"]["standing_still"]["position_error_m"] == pytest.approx(result["standing_still"]["per_scene"][2]["position_error_m"])
+    assert kinds["family c"]["model"]["displacement_mpm_m"] == pytest.approx(
+        (scenes[1]["displacement_mpm_m"] + scenes[2]["displacement_mpm_m"]) / 2)

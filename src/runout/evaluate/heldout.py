@@ -12,7 +12,10 @@ Per scene, at the times the two trajectories share (runout.metrics.at_common_tim
 - extent runout error: |L_GNS - L_MPM| / L_MPM of the soil's horizontal extent at the last frame;
 - mean displacement (m) of the soil at the last frame, GNS and MPM.
 
-`score` averages them over the scenes.
+`score` averages them over the scenes; `evaluate_heldout` also averages them by kind of scene
+(`by_kind`): the dataset's family of each scene (metadata.json's scene_families through its
+splits) and whether it starts at rest or with thrown soil (points faster than START_SPEED at
+frame 0), since a model can start failing slopes badly and thrown blocks well, or the reverse.
 """
 
 from __future__ import annotations
@@ -50,8 +53,12 @@ def scene_scores(predicted: Trajectory, truth: Trajectory, spacing: float) -> di
 
 
 def score(predicted: list[Trajectory], truths: list[Trajectory], spacing: float) -> dict:
-    """Means over the scenes, and each scene's scores under "scenes"."""
-    scenes = [scene_scores(p, t, spacing) for p, t in zip(predicted, truths)]
+    """Means over the scenes, and each scene's scores under "per_scene"."""
+    return summarise([scene_scores(p, t, spacing) for p, t in zip(predicted, truths)])
+
+
+def summarise(scenes: list[dict]) -> dict:
+    """Means of scene_scores over the scenes, and the scenes under "per_scene"."""
     fronts = [e for s in scenes for e in s["front_errors"]]
     return {
         "scenes": len(scenes),
@@ -72,8 +79,34 @@ def evaluate_heldout(simulator, data: str | Path, split: str = "valid", count: i
     truths = list(split_trajectories(data, split, count))
     spacing = simulator.point_spacing
     predicted = rollout_all(simulator, truths, progress)
-    return {"model": score(predicted, truths, spacing),
-            "standing_still": score([standing_still(t) for t in truths], truths, spacing)}
+    result = {"model": score(predicted, truths, spacing),
+              "standing_still": score([standing_still(t) for t in truths], truths, spacing)}
+    kinds = scene_kinds(data, split, truths)
+    result["by_kind"] = {
+        kind: {who: _without_scenes(summarise([s for s, k in zip(result[who]["per_scene"], kinds[group]) if k == kind]))
+               for who in ("model", "standing_still")}
+        for group in ("family", "start") for kind in sorted(set(kinds[group]) - {None})
+    }
+    return result
+
+
+def _without_scenes(summary: dict) -> dict:
+    return {k: v for k, v in summary.items() if k != "per_scene"}
+
+
+def scene_kinds(data: str | Path, split: str, truths: list[Trajectory]) -> dict[str, list[str | None]]:
+    """Each truth's kind, by "family" ("family b", ...: metadata.json's scene_families through
+    its splits; None where the dataset does not record them) and by "start" ("starts at rest",
+    "starts thrown": soil faster than START_SPEED at frame 0). truths: the split's first
+    scenes, in order."""
+    from runout.dataset import read_metadata
+
+    meta = read_metadata(Path(data))
+    families, order = meta.get("scene_families"), (meta.get("splits") or {}).get(split)
+    by_family = [f"family {families[order[i]]}" if families and order and i < len(order) else None
+                 for i in range(len(truths))]
+    by_start = ["starts thrown" if t.start_velocity().any() else "starts at rest" for t in truths]
+    return {"family": by_family, "start": by_start}
 
 
 def rollout_all(simulator, truths, progress: bool = False) -> list:
