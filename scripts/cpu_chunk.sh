@@ -20,7 +20,7 @@ hours=${2:?usage: cpu_chunk.sh pilot|base|finetune HOURS}
 runout=${RUNOUT:-.venv/bin/runout}
 threads=${THREADS:-2}
 base=${BASE:-models/base.pt}   # the fine-tune's start: BASE=models/base-best20000.pt takes a run's best.pt instead
-onset=${ONSET:-}               # ONSET="0:0.4:4,12000:0.5:2" replaces the recipe's onset schedule (runout train --onset-schedule)
+onset=${ONSET:-}               # ONSET="0:0.4:4,12000:0.5:2" replaces the recipe's onset schedule (runout train --onset-schedule); a resumed run keeps its own
 
 CELL=8          # m; 2 x 2 points per cell -> 4 m point spacing
 FRAMES=480
@@ -29,9 +29,6 @@ NET=(--latent 64 --hidden 64 --message-passing-steps 5 --batch-size 2)
 # learning rate and decay, noise 0.01 of the velocity std, no noise on the scene at rest,
 # pushforward 2, a weight average, and the onset of motion drawn in three phases
 read -r -a RECIPE <<< "$("${runout%/runout}/python" -c 'from runout.train_settings import recipe_options; print(" ".join(recipe_options()))')"
-if [ -n "$onset" ]; then
-  for i in "${!RECIPE[@]}"; do if [ "${RECIPE[$i]}" = --onset-schedule ]; then RECIPE[i+1]=$onset; fi; done
-fi
 # bf16 autocast only where the CPU multiplies bfloat16 natively (AVX512-BF16 or AMX): on an
 # AVX2-only CPU PyTorch falls back to a generic kernel, 14x slower than float32 (docs/training.md)
 if grep -q -E 'avx512_bf16|amx_bf16' /proc/cpuinfo 2>/dev/null; then NET+=(--bf16); fi
@@ -79,6 +76,14 @@ if [ "$stage" = finetune ] && [ ${#resume[@]} -eq 0 ] && ! recipe_weights "$base
   exit 2
 fi
 if [ ${#resume[@]} -eq 1 ]; then init=(); fi
+# A resumed run keeps the onset schedule it was started with (ONSET= included) unless ONSET= is given again
+if [ -z "$onset" ] && [ ${#resume[@]} -eq 1 ]; then
+  onset=$("${runout%/runout}/python" -c "import sys, torch; c = torch.load(sys.argv[1], weights_only=True, map_location='cpu'); print(','.join(f'{a}:{b:g}:{f}' for a, b, f in c['train'].get('onset_schedule', ())))" "$run/checkpoint.pt")
+fi
+if [ -n "$onset" ]; then
+  for i in "${!RECIPE[@]}"; do if [ "${RECIPE[$i]}" = --onset-schedule ]; then RECIPE[i+1]=$onset; fi; done
+  echo "cpu_chunk.sh: onset schedule $onset" >&2
+fi
 
 OMP_NUM_THREADS=$threads "$runout" train --data "$data" --out "$run" --steps 100000000 --max-hours "$hours" \
   "${NET[@]}" "${RECIPE[@]}" "${init[@]}" "${resume[@]}" \
