@@ -51,12 +51,19 @@ fi
 # Whether a checkpoint was trained with this recipe on solver-6 data: the recipe's settings
 # (--exact-rest among them) entered the checkpoints with it; the models committed before it
 # (solver 3, weights and Adam state) must not be continued, and a fine-tune must not start from them
-recipe_weights() {  # a start for a fine-tune needs the weights and the recipe's settings, not Adam's state
-  "${runout%/runout}/python" -c "import sys, torch; from runout.train_settings import trained_with_recipe; c = torch.load(sys.argv[1], weights_only=True, map_location='cpu'); sys.exit(not trained_with_recipe(c.get('train', {})))" "$1"
+# Each check exits 0 (yes) or 10 (no); any other status means python could not read the file
+# (a missing torch, a damaged file), which stops the chunk instead of reading as "predates the recipe"
+recipe_check() {  # $1: weights (a fine-tune's start needs the weights and the recipe's settings) or checkpoint (also Adam's state); $2: the file
+  local rc=0
+  "${runout%/runout}/python" -c "import sys, torch; from runout.train_settings import trained_with_recipe; c = torch.load(sys.argv[2], weights_only=True, map_location='cpu'); ok = trained_with_recipe(c.get('train', {})) and (sys.argv[1] == 'weights' or 'optimizer' in c); sys.exit(0 if ok else 10)" "$1" "$2" || rc=$?
+  case $rc in
+    0) return 0 ;;
+    10) return 1 ;;
+    *) echo "cpu_chunk.sh: could not read $2 (python exited with $rc, its message above)" >&2; exit 2 ;;
+  esac
 }
-recipe_checkpoint() {
-  "${runout%/runout}/python" -c "import sys, torch; from runout.train_settings import trained_with_recipe; c = torch.load(sys.argv[1], weights_only=True, map_location='cpu'); sys.exit(not ('optimizer' in c and trained_with_recipe(c.get('train', {}))))" "$1"
-}
+recipe_weights() { recipe_check weights "$1"; }
+recipe_checkpoint() { recipe_check checkpoint "$1"; }
 resume=()
 if [ -f "$run/checkpoint.pt" ] && recipe_checkpoint "$run/checkpoint.pt"; then
   resume=(--resume)

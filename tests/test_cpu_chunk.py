@@ -1,6 +1,7 @@
 """scripts/cpu_chunk.sh, the campaign's one command per chunk, run in a copy of the repository
 layout with a stand-in for `runout` that records its arguments: the fine-tune's start (BASE=),
-the onset schedule (ONSET=, kept by a resumed run) and the refusal of a base from before the recipe."""
+the onset schedule (ONSET=, kept by a resumed run), the refusal of a base from before the recipe
+and of a file python cannot read."""
 
 import os
 import shutil
@@ -71,4 +72,13 @@ def test_a_fine_tune_from_a_base_trained_before_the_recipe_is_refused(layout):
     result = chunk(layout)  # BASE defaults to models/base.pt, which lacks the recipe's settings
     assert result.returncode == 2
     assert "models/base.pt predates the recipe" in result.stderr
+    assert not (layout / "calls.txt").exists() or all(not c.startswith("train") for c in calls(layout))
+
+
+def test_a_base_file_that_cannot_be_read_stops_the_chunk_with_its_own_message(layout):
+    (layout / "models" / "damaged.pt").write_bytes(b"not a checkpoint")
+    result = chunk(layout, BASE="models/damaged.pt")
+    assert result.returncode == 2
+    assert "could not read models/damaged.pt" in result.stderr
+    assert "predates the recipe" not in result.stderr
     assert not (layout / "calls.txt").exists() or all(not c.startswith("train") for c in calls(layout))
