@@ -51,15 +51,26 @@ fi
 # Whether a checkpoint was trained with this recipe on solver-6 data: the recipe's settings
 # (--exact-rest among them) entered the checkpoints with it; the models committed before it
 # (solver 3, weights and Adam state) must not be continued, and a fine-tune must not start from them
-# Each check exits 0 (yes) or 10 (no); any other status means python could not read the file
-# (a missing torch, a damaged file), which stops the chunk instead of reading as "predates the recipe"
+# Each check exits 0 (yes) or 10 (no); a file python cannot read (a damaged file, a missing torch)
+# stops the chunk with one sentence instead of reading as "predates the recipe"
 recipe_check() {  # $1: weights (a fine-tune's start needs the weights and the recipe's settings) or checkpoint (also Adam's state); $2: the file
   local rc=0
-  "${runout%/runout}/python" -c "import sys, torch; from runout.train_settings import trained_with_recipe; c = torch.load(sys.argv[2], weights_only=True, map_location='cpu'); ok = trained_with_recipe(c.get('train', {})) and (sys.argv[1] == 'weights' or 'optimizer' in c); sys.exit(0 if ok else 10)" "$1" "$2" || rc=$?
+  "${runout%/runout}/python" -c "
+import sys
+try:
+    import torch
+    from runout.train_settings import trained_with_recipe
+    c = torch.load(sys.argv[2], weights_only=True, map_location='cpu')
+except Exception as e:
+    print(f'cpu_chunk.sh: could not read {sys.argv[2]} as a checkpoint ({type(e).__name__}: {(str(e).splitlines() or [\"\"])[0]})', file=sys.stderr)
+    sys.exit(3)
+ok = trained_with_recipe(c.get('train', {})) and (sys.argv[1] == 'weights' or 'optimizer' in c)
+sys.exit(0 if ok else 10)" "$1" "$2" || rc=$?
   case $rc in
     0) return 0 ;;
     10) return 1 ;;
-    *) echo "cpu_chunk.sh: could not read $2 (python exited with $rc, its message above)" >&2; exit 2 ;;
+    3) exit 2 ;;
+    *) echo "cpu_chunk.sh: could not read $2 (python exited with $rc)" >&2; exit 2 ;;
   esac
 }
 recipe_weights() { recipe_check weights "$1"; }
