@@ -3,7 +3,7 @@
 #
 #   bash scripts/cpu_chunk.sh pilot HOURS      # the recipe's proof model on phi + c data -> models/pilot.pt
 #   bash scripts/cpu_chunk.sh base HOURS       # friction-only base model  -> models/base.pt
-#   bash scripts/cpu_chunk.sh finetune HOURS   # phi + c, from models/base.pt -> models/slope.pt
+#   bash scripts/cpu_chunk.sh finetune HOURS   # phi + c, from models/base.pt -> models/slope-train.pt
 #   BASE=models/base-best20000.pt ONSET=0:0.4:4,12000:0.5:2 bash scripts/cpu_chunk.sh finetune HOURS
 #
 # The chunk (1) regenerates its dataset from the seed when data/ lacks it (deterministic and
@@ -11,7 +11,9 @@
 # committed checkpoint in models/ when runs/ lacks it, if that checkpoint was trained with the
 # recipe (an older one, solver 3's, is never continued: the stage starts afresh), (3) trains with --resume for at most
 # HOURS of wall time (the last whole step is saved, exit 0), and (4) copies the checkpoint
-# (weights + Adam state + step) and its log back to models/, ready to commit. The settings
+# (weights + Adam state + step) and its log back to models/, ready to commit. The fine-tune's
+# resumable run is models/slope-train.pt; the shipped models/slope.pt is whichever file of the
+# run (its last or its best.pt) does best on 16 held-out scenes from rest (docs/training.md). The settings
 # are runout.train_settings.RECIPE, the recipe chosen by the pilots in docs/training.md.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -37,7 +39,7 @@ case "$stage" in
             init=() ;;
   base)     data=data/base8; count=320; run=runs/base8; model=models/base.pt; stage_data=base
             init=() ;;
-  finetune) data=data/ft8;   count=260; run=runs/ft8;   model=models/slope.pt; stage_data=finetune
+  finetune) data=data/ft8;   count=260; run=runs/ft8;   model=models/slope-train.pt; stage_data=finetune
             init=(--init "$base") ;;
   *) echo "cpu_chunk.sh: the stage '$stage' is not one of pilot, base, finetune" >&2; exit 2 ;;
 esac

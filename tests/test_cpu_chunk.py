@@ -59,7 +59,7 @@ def test_a_fine_tune_starts_from_BASE_with_ONSET_and_its_resume_keeps_that_sched
     args = calls(layout)[-1].split()
     assert args[args.index("--init") + 1] == "models/best.pt" and "--resume" not in args
     assert args[args.index("--onset-schedule") + 1] == "0:0.4:4,12000:0.5:2"
-    assert (layout / "models" / "slope.pt").is_file() and (layout / "models" / "slope.log.jsonl").is_file()
+    assert (layout / "models" / "slope-train.pt").is_file() and (layout / "models" / "slope-train.log.jsonl").is_file()
 
     second = chunk(layout)  # no ONSET: the run's own schedule, not the recipe's three phases
     assert second.returncode == 0, second.stderr
