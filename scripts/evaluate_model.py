@@ -63,6 +63,8 @@ def curves(log: Path, path: Path) -> dict:
         axes[1].legend(loc="upper left", fontsize=8)
         twin.legend(loc="upper right", fontsize=8)
     axes[1].set(xlabel="step", ylabel="|runout error| (%)", title="validation rollouts")
+    for ax in axes:  # thousands of steps: six-digit tick labels run into each other
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:g}k"))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return {"last_step": steps[-1], "loss_last_1000_steps": float(np.mean([v for s, v in loss if s > steps[-1] - 1000])),
