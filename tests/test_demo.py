@@ -74,8 +74,12 @@ def test_quick_demo_writes_the_forward_and_inverse_pictures(tmp_path):
     out = tmp_path / "demo"
     result = CliRunner().invoke(app, ["demo", "--out", str(out), "--model", str(model), "--quick"])
     assert result.exit_code == 0, result.output
-    for name in ("forward/animation.gif", "forward/final.png", "forward/metrics.json", "inverse/result/loss.png",
-                 "inverse/result/parameters.png", "inverse/result/deposit.png", "inverse/result/history.csv",
+    starts = json.loads((out / "inverse" / "result" / "starts.json").read_text())["starts"]
+    assert len(starts) == 2 and starts[0]["initial"] != starts[1]["initial"]  # two L-BFGS-B starts, the lower loss kept
+    best = min(range(2), key=lambda k: starts[k]["loss"])
+    for name in ("forward/animation.gif", "forward/final.png", "forward/metrics.json", f"inverse/result/start_0{best}/loss.png",
+                 f"inverse/result/start_0{best}/parameters.png", f"inverse/result/start_0{best}/deposit.png",
+                 "inverse/result/start_00/history.csv", "inverse/result/start_01/history.csv", "inverse/result/starts.png",
                  "inverse/mpm_ad/parameters.png", "inverse/mpm_ad/history.csv"):
         assert (out / name).stat().st_size > 0, name
         assert str(out / name) in result.output or name.endswith(".csv")
