@@ -33,7 +33,7 @@ def average_checkpoints(out: Path, inputs: list[Path]) -> Path:
     first = ckpts[0]
     for path, ckpt in zip(inputs[1:], ckpts[1:]):
         for key in SAME:
-            if ckpt.get(key) != first.get(key) and not _tensors_equal(ckpt.get(key), first.get(key)):
+            if not _equal(ckpt.get(key), first.get(key)):
                 raise InputError(f"{path}: its '{key}' differs from that of {inputs[0]}; only checkpoints of one run can be averaged.")
     names = first["model"].keys()
     mean = {n: sum(c["model"][n].double() for c in ckpts).div(len(ckpts)).to(first["model"][n].dtype) for n in names}
@@ -43,12 +43,12 @@ def average_checkpoints(out: Path, inputs: list[Path]) -> Path:
     return save_checkpoint(out, simulator, averaged_from=[str(p) for p in inputs], **extra)
 
 
-def _tensors_equal(a, b) -> bool:
+def _equal(a, b) -> bool:
     """Nested dicts/lists of tensors and plain values compared by value."""
     if isinstance(a, dict) and isinstance(b, dict):
-        return a.keys() == b.keys() and all(_tensors_equal(a[k], b[k]) for k in a)
+        return a.keys() == b.keys() and all(_equal(a[k], b[k]) for k in a)
     if isinstance(a, (list, tuple)) and isinstance(b, (list, tuple)):
-        return len(a) == len(b) and all(_tensors_equal(x, y) for x, y in zip(a, b))
+        return len(a) == len(b) and all(_equal(x, y) for x, y in zip(a, b))
     if isinstance(a, torch.Tensor) and isinstance(b, torch.Tensor):
         return a.shape == b.shape and bool(torch.equal(a, b))
     return a == b

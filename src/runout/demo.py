@@ -108,10 +108,9 @@ def _inverse(simulator, model: Path, scene_path: Path, out: Path, quick: bool, l
     shutil.rmtree(result_dir, ignore_errors=True)  # a demo starts afresh (the model may have changed)
     t0 = time.perf_counter()
     log(f"inverse: L-BFGS-B on c of {FREE_MATERIAL}, one line per GNS rollout with its gradient")
-    starts = INVERSE_STARTS
-    result = invert(spec, result_dir, model=model, starts=starts, log=lambda line: log(f"  {line}"))
+    result = invert(spec, result_dir, model=model, starts=INVERSE_STARTS, log=lambda line: log(f"  {line}"))
     evaluations = sum(r.evaluations for r in result.starts)
-    log(f"inverse: {evaluations} evaluations from {starts} start{'s' * (starts > 1)} in {time.perf_counter() - t0:.0f} s")
+    log(f"inverse: {evaluations} evaluations from {INVERSE_STARTS} starts in {time.perf_counter() - t0:.0f} s")
     for line in summary_lines(result):
         log(f"  {line}")
     truth = scene.materials[FREE_MATERIAL].cohesion
