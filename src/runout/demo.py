@@ -144,7 +144,10 @@ def _mpm_target(scene, out: Path, log: Log) -> Path:
 
 def _write_spec(out: Path, target: str, material, quick: bool) -> Path:
     """The inverse spec: c of FREE_MATERIAL free in [10, 100] kPa, everything else as in the scene."""
-    iterations, evaluations = (1, 2) if quick else (8, 12)
+    # 8 evaluations per start: the 24 of two starts at 12 took the demo past 5 minutes on one
+    # thread (6 min 16 s); in that run each start had its answer by evaluation 4 or 5 and the
+    # later ones moved c by < 0.1 kPa (line searches in the loss's noise, docs/training.md)
+    iterations, evaluations = (1, 2) if quick else (6, 8)
     gtol = 1e6 if quick else 1e-8  # quick: L-BFGS-B stops after evaluating the start
     text = f"""# written by `runout demo`
 scene = "scene.toml"
