@@ -189,8 +189,22 @@ def test_inverse_records_truth_bounds_model_loss_and_figures(studies):
     assert [(p["true"], p["lower"], p["upper"]) for p in s["parameters"]] == [(40.0, 10.0, 100.0), (100.0, 99.0, 101.0), (41.0, 5.0, 50.0)]
     assert all(p["lower"] <= p["inferred"] <= p["upper"] for p in s["parameters"])
     assert s["history"][0]["model_loss"] == pytest.approx(np.mean([(80 - 40) ** 2 / 90**2, 0.0, (30 - 41) ** 2 / 45**2]))
-    for name in ("target.png", "run/loss.png", "run/parameters.png", "run/deposit.png"):
+    for name in ("target.png", "run/loss.png", "run/parameters.png", "run/deposit.png", "run_mpm_ad/parameters.png"):
         assert (folder / name).is_file()
+
+
+def test_inverse_solves_the_same_problem_through_the_mpm_as_its_yardstick(studies):
+    s = json.loads((studies / "out" / "inverse" / "summary.json").read_text())
+    y = s["yardstick"]
+    assert s["engine"] == "gns" and y["engine"] == "mpm-ad"
+    assert [p["name"] for p in y["parameters"]] == [p["name"] for p in s["parameters"]]
+    assert [p["initial"] for p in y["parameters"]] == [80.0, 100.0, 30.0]  # the same start as the GNS
+    assert all(p["lower"] <= p["inferred"] <= p["upper"] for p in y["parameters"])
+    for engine in (s, y):  # the cost of an iteration: every evaluation's forward and backward time over the iterations
+        assert engine["seconds"] > 0
+        assert engine["seconds_per_iteration"] == pytest.approx(engine["seconds"] / max(engine["iterations"], 1))
+    history = json.loads((studies / "out" / "inverse" / "run_mpm_ad" / "history.json").read_text())
+    assert history["run"]["engine"] == "mpm-ad" and history["run"]["model"] == ""
 
 
 def test_inverse_spec_keeps_the_papers_bounds_and_points_at_the_mpm_target(tmp_path):
@@ -227,6 +241,7 @@ def test_report_names_the_model_and_links_existing_figures(studies, tmp_path):
     text = doc.read_text()
     assert "untrained (saved without a training run)" in text and "shrunk: not the paper's geometry" in text
     assert "| aspect a | cases | mean error (%) | CV | R² |" in text and "Not run (`runout evaluate sensitivity`)." in text
+    assert "| inferred (GNS) | inferred (MPM-AD) |" in text and "s per L-BFGS-B iteration" in text
     links = [part.split(")")[0] for part in text.split("](")[1:]]
     assert links and all((doc.parent / link).is_file() for link in links)
 

@@ -186,6 +186,7 @@ def inverse(
     study: Study,
     frames: int = typer.Option(None, help="Frames of the MPM target and the rollout (default: the scene's 400)."),
     max_iterations: int = typer.Option(None, help="L-BFGS-B iterations (default: examples/dam_inverse.toml's)."),
+    yardstick: bool = typer.Option(True, "--yardstick/--no-yardstick", help="Also solve the same inverse through the MPM itself (--engine mpm-ad) and report both engines' answers and seconds per iteration."),
 ) -> None:
     """Dam inversion (paper §5.2): MPM target, then c1 in [10, 100] kPa, c2 in [99, 101] kPa and phi3 in [5, 50] degrees back-calculated with the inverse module."""
     from runout.evaluate import run_inverse
@@ -193,10 +194,16 @@ def inverse(
     if max_iterations is not None and max_iterations < 1:
         raise InputError(f"--max-iterations {max_iterations} must be a positive whole number.")
     engines = study.start("inverse", frames)
-    s = run_inverse(study.model, study.out, engines, study.examples, frames, study.scale, max_iterations, typer.echo)
-    for p in s["parameters"]:
-        typer.echo(f"{p['name']}: inferred {p['inferred']:.4g} {p['unit']} (true {p['true']}, bounds [{p['lower']:g}, {p['upper']:g}])")
-    typer.echo(f"wrote {study.out / 'inverse'}/summary.json, target.png and run/")
+    s = run_inverse(study.model, study.out, engines, study.examples, frames, study.scale, max_iterations, typer.echo,
+                    yardstick)
+    y = s.get("yardstick")
+    for k, p in enumerate(s["parameters"]):
+        beside = "" if y is None else f", MPM-AD {y['parameters'][k]['inferred']:.4g}"
+        typer.echo(f"{p['name']}: inferred {p['inferred']:.4g} {p['unit']}{beside} (true {p['true']}, "
+                   f"bounds [{p['lower']:g}, {p['upper']:g}])")
+    typer.echo(f"seconds per L-BFGS-B iteration: GNS {s['seconds_per_iteration']:.3g}"
+               + ("" if y is None else f", MPM-AD {y['seconds_per_iteration']:.3g}"))
+    typer.echo(f"wrote {study.out / 'inverse'}/summary.json, target.png and run/" + ("" if y is None else " and run_mpm_ad/"))
 
 
 @evaluate_app.command()

@@ -8,9 +8,15 @@ The model loss is the MSE between the normalised true and inferred parameters. T
 is an MPM run of the dam at the model's point spacing, the spacing the inverse rolls the GNS
 out at.
 
+The same spec is then solved through the MPM itself (`--engine mpm-ad`, reverse-mode AD through
+the solver) as the yardstick: the same target, start, bounds and optimiser, so the two engines'
+answers and their seconds per L-BFGS-B iteration stand side by side (paper §5.2 compares the
+GNS's inverse with the MPM's in accuracy and cost).
+
 Writes OUT/inverse/: scene.toml and spec.toml (the problem solved), target.png (initial
 geometry, MPM deposit, its displacement), run/ (history.json, history.csv, loss.png,
-parameters.png, deposit.png from the inverse module) and summary.json.
+parameters.png, deposit.png from the inverse module, GNS), run_mpm_ad/ (the same, MPM-AD;
+unless yardstick=False) and summary.json.
 """
 
 from __future__ import annotations
@@ -34,9 +40,14 @@ DAM_SCENE = "dam.toml"
 DAM_SPEC = "dam_inverse.toml"
 
 
+YARDSTICK = "mpm-ad"
+YARDSTICK_RUN = "run_mpm_ad"
+
+
 def run_inverse(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLES, frames: int | None = None,
-                scale: float = 1.0, max_iterations: int | None = None, log=None) -> dict:
-    """Run the study; returns the summary written to OUT/inverse/summary.json."""
+                scale: float = 1.0, max_iterations: int | None = None, log=None, yardstick: bool = True) -> dict:
+    """Run the study (the GNS, then the MPM-AD yardstick unless `yardstick` is False); returns
+    the summary written to OUT/inverse/summary.json."""
     folder = Path(out) / "inverse"
     scene = scaled(model_scene(examples, DAM_SCENE, load_simulator(model, run.device), run.log), scale)
     scene = scene.with_frames(frames) if frames is not None else scene
@@ -48,7 +59,12 @@ def run_inverse(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLE
     result = invert(folder / "spec.toml", folder / "run", model=model, device=run.device, log=log)
     draw_target(load_trajectory(target), folder / "target.png")
     summary = summarise(result, model)
-    summary.update(scale=scale, frames=scene.time.frames)
+    summary.update(scale=scale, frames=scene.time.frames, engine="gns")
+    if yardstick:
+        if log:
+            log(f"the yardstick: the same inverse through the MPM ({YARDSTICK})")
+        measured = invert(folder / "spec.toml", folder / YARDSTICK_RUN, device=run.device, engine=YARDSTICK, log=log)
+        summary["yardstick"] = engine_summary(measured) | {"engine": YARDSTICK}
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
 
@@ -83,11 +99,15 @@ def _toml(value) -> str:
 
 
 def summarise(result, model: Path) -> dict:
+    return {"study": "inverse", "model": model_card(model).to_dict()} | engine_summary(result)
+
+
+def engine_summary(result) -> dict:
+    """One engine's answer: parameters (true, inferred, bounds), losses, iterations and cost."""
     best = result.best
     history = best.history
+    spent = sum(r.forward_s + r.backward_s for r in history.records)  # s, every evaluation of the best start
     return {
-        "study": "inverse",
-        "model": model_card(model).to_dict(),
         "parameters": [
             {"name": p.name, "unit": p.unit, "lower": p.lower, "upper": p.upper, "initial": p.initial,
              "true": None if history.true_values is None else history.true_values[k], "inferred": float(best.values[k])}
@@ -97,6 +117,8 @@ def summarise(result, model: Path) -> dict:
         "iterations": best.iterations,
         "evaluations": best.evaluations,
         "message": best.message,
+        "seconds": spent,
+        "seconds_per_iteration": spent / max(best.iterations, 1),
         "history": [
             {"iteration": r.iteration, "values": r.values, "data_loss_m2": r.loss, "model_loss": history.model_loss(r),
              "forward_s": r.forward_s, "backward_s": r.backward_s}

@@ -17,7 +17,7 @@ FIGURES = {
     "columns": ("runout_1to1.png", "error_heatmaps.png", "evolution_p25.png", "evolution_p50.png", "evolution_p75.png"),
     "slope": ("fields_materials.png", "fields_displacement.png", "displacement_error.png"),
     "diagnostics": ("velocity_diagnostics.png",),
-    "inverse": ("target.png", "run/loss.png", "run/parameters.png", "run/deposit.png"),
+    "inverse": ("target.png", "run/loss.png", "run/parameters.png", "run/deposit.png", "run_mpm_ad/parameters.png"),
     "sensitivity": ("rollout_mse.png", "loss_history.png"),
 }
 
@@ -125,10 +125,23 @@ def _inverse(s: dict) -> list[str]:
     lines = [f"Target: MPM run of the dam, {s['frames']} frames, geometry scale {s['scale']:g}{_shrunk(s['scale'])}; "
              f"{s['iterations']} L-BFGS-B iterations ({s['evaluations']} evaluations, {s['message']}); "
              f"final data loss {s['final_data_loss_m2']:.4g} m².", ""]
-    lines += _table(["parameter", "unit", "bounds", "initial", "true", "inferred"],
-                    [[p["name"], p["unit"], f"[{p['lower']:g}, {p['upper']:g}]", p["initial"], p["true"], p["inferred"]]
-                     for p in s["parameters"]])
-    lines += ["", "Per iteration:", ""]
+    yardstick = s.get("yardstick")
+    header = ["parameter", "unit", "bounds", "initial", "true", "inferred (GNS)"]
+    rows = [[p["name"], p["unit"], f"[{p['lower']:g}, {p['upper']:g}]", p["initial"], p["true"], p["inferred"]]
+            for p in s["parameters"]]
+    if yardstick is not None:
+        header.append("inferred (MPM-AD)")
+        rows = [row + [y["inferred"]] for row, y in zip(rows, yardstick["parameters"])]
+    lines += _table(header, rows)
+    if "seconds_per_iteration" in s:
+        lines += ["", f"Cost on this machine: GNS {s['seconds_per_iteration']:.3g} s per L-BFGS-B iteration "
+                  f"({s['seconds']:.4g} s for {s['evaluations']} evaluations)"
+                  + ("." if yardstick is None else
+                     f"; the yardstick through the MPM itself (MPM-AD) {yardstick['seconds_per_iteration']:.3g} s per "
+                     f"iteration ({yardstick['seconds']:.4g} s for {yardstick['evaluations']} evaluations, "
+                     f"{yardstick['iterations']} iterations, final data loss {yardstick['final_data_loss_m2']:.4g} m²; "
+                     f"{yardstick['message']}).")]
+    lines += ["", "Per iteration (GNS):", ""]
     lines += _table(["iteration", "data loss (m²)", "model loss", "values"],
                     [[h["iteration"], h["data_loss_m2"], h["model_loss"], ", ".join(f"{v:.4g}" for v in h["values"])]
                      for h in s["history"]])
