@@ -425,6 +425,7 @@ def test_public_invert_runs_several_starts(toy, tmp_path):
     result = invert(write_spec(toy, params, name="starts.toml"), tmp_path, model=toy / "model.pt", starts=2)
     assert len(result.starts) == 2 and (tmp_path / "starts.json").is_file() and (tmp_path / "starts.png").is_file()
     assert result.best.values[0] == pytest.approx(40.0, rel=0.01)
+    assert json.loads((tmp_path / "starts.json").read_text())["true"] == [40.0]  # the target's own value, drawn in starts.png
 
 
 # ----------------------------------------------------------------------------- MPM finite differences

@@ -109,6 +109,9 @@ def draw_starts(results: list[StartResult], path: Path) -> None:
             ax.plot([r.iteration for r in its], [r.values[k] for r in its], "o-", ms=3, label=f"start {n}")
         ax.axhline(p.lower, color="0.5", lw=0.8, ls="--")
         ax.axhline(p.upper, color="0.5", lw=0.8, ls="--")
+        true_values = results[0].history.true_values  # the values that made the target, when it records them
+        if true_values is not None:
+            ax.axhline(true_values[k], color="tab:red", ls=":", label="true")
         ax.set(xlabel="iteration", ylabel=f"{p.name} ({p.unit})", title=p.name)
     axes[0, 0].legend(fontsize=7)
     _save(fig, path)

@@ -155,7 +155,8 @@ def _write_starts(inversion: InversionResult, out_dir: Path) -> None:
          "loss": r.loss, "iterations": r.iterations, "evaluations": r.evaluations, "message": r.message}
         for k, r in enumerate(inversion.starts)
     ]
-    summary = {"parameters": [p.name for p in free], "starts": rows, "spread": inversion.spread}
+    summary = {"parameters": [p.name for p in free], "true": inversion.best.history.true_values,  # None: unknown
+               "starts": rows, "spread": inversion.spread}
     (out_dir / "starts.json").write_text(json.dumps(summary, indent=1))
     header = ["start", "loss (m^2)", "iterations"] + [f"initial {p.name} ({p.unit})" for p in free]
     header += [f"{p.name} ({p.unit})" for p in free]
