@@ -11,7 +11,8 @@ box per parameter searches a normalised space. See docs/inverse-format.md.
 
 from runout.inverse.observation import Observation, load_observation
 from runout.inverse.optimise import StartResult, minimise, run_starts, starting_points
-from runout.inverse.problem import Evaluation, InverseProblem, weighted_mse
+from runout.inverse.loss import weighted_mse
+from runout.inverse.problem import Evaluation, InverseProblem
 from runout.inverse.run import ENGINES, InversionResult, invert, summary_lines
 from runout.inverse.spec import FreeParameter, InverseSpec, load_inverse_spec
 

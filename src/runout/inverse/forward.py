@@ -11,6 +11,7 @@ from runout.errors import InputError
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout, start_window
 from runout.gns.simulator import Simulator
+from runout.inverse.loss import spec_loss
 from runout.inverse.observation import Observation
 from runout.inverse.problem import ForwardModel, InverseProblem
 from runout.inverse.spec import InverseSpec
@@ -63,8 +64,7 @@ def inverse_problem(
         material_id=observation.material_id,
         feature_width=simulator.schema.material_width,
         forward=gns_forward(simulator, observation, domain_bounds(spec), checkpoint, progress),
-        target=observation.positions,
-        weights=observation.weights(spec.loss),
+        data_loss=spec_loss(spec, observation, simulator.vel_mean.device),
         device=str(simulator.vel_mean.device),
     )
 

@@ -15,7 +15,8 @@ import torch
 
 from runout.errors import InputError, RunFailed
 from runout.inverse.observation import Observation
-from runout.inverse.problem import Evaluation, timed_evaluation, weighted_mse
+from runout.inverse.loss import spec_loss
+from runout.inverse.problem import Evaluation, timed_evaluation
 from runout.inverse.spec import InverseSpec
 from runout.mpm.batch import BACKEND
 from runout.mpm.budget import GIB, check_budget, device_memory
@@ -44,8 +45,7 @@ class MpmAutodiff:
         self.table = torch.tensor(material_table(spec.scene), **f64)  # [M, 2] phi (degrees), c (kPa)
         self.rows = torch.tensor([names.index(p.material) for p in spec.free], device=self.device)
         self.cols = torch.tensor([0 if p.prop == "phi" else 1 for p in spec.free], device=self.device)
-        self.target = torch.tensor(observation.positions, **f64)
-        self.weights = torch.tensor(observation.weights(spec.loss), **f64)
+        self.data_loss = spec_loss(spec, observation, self.device)
 
     def __call__(self, values: np.ndarray) -> Evaluation:
         evaluation = timed_evaluation(values, self._loss, self.device)
@@ -57,7 +57,7 @@ class MpmAutodiff:
     def _loss(self, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         table = self.table.index_put((self.rows, self.cols), v)
         predicted = self.model(table[:, 0], table[:, 1])
-        return weighted_mse(predicted, self.target, self.weights), predicted
+        return self.data_loss(predicted), predicted
 
 
 def check_ad_budget(spec: InverseSpec, observation: Observation, device: str) -> None:

@@ -18,7 +18,8 @@ from runout import checks
 from runout.inverse.memory import PeakMemory
 from runout.inverse.observation import Observation
 from runout.inverse.optimise import spans, to_physical
-from runout.inverse.problem import Evaluation, weighted_mse
+from runout.inverse.loss import spec_loss
+from runout.inverse.problem import Evaluation
 from runout.inverse.spec import InverseSpec
 from runout.mpm.batch import BACKEND
 
@@ -48,8 +49,7 @@ class MpmFiniteDifference:
         self.progress = progress
         self.compile = compile  # with backend="torch", the oracle of tests and benchmarks (runout.mpm.simulate)
         self.backend = backend
-        self.target = torch.tensor(observation.positions, dtype=torch.float64)
-        self.weights = torch.tensor(observation.weights(spec.loss), dtype=torch.float64)
+        self.data_loss = spec_loss(spec, observation)
 
     def stencil(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """([2P + 1, P] physical values: centre, then below/above per parameter; [P] spacing in u)."""
@@ -88,4 +88,4 @@ class MpmFiniteDifference:
 
     def _loss(self, positions: np.ndarray) -> float:
         predicted = torch.from_numpy(np.ascontiguousarray(positions[self.frames]))
-        return float(weighted_mse(predicted, self.target, self.weights))
+        return float(self.data_loss(predicted))

@@ -17,6 +17,7 @@ import torch
 
 from runout.errors import InputError
 from runout.gns.schema import encode_materials_torch
+from runout.inverse.loss import DataLoss
 from runout.inverse.memory import PeakMemory
 from runout.inverse.spec import FreeParameter
 
@@ -34,14 +35,6 @@ class Evaluation:
     deposit: np.ndarray  # [N, 2] m, predicted positions at the last observed frame
 
 
-def weighted_mse(predicted: torch.Tensor, target: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Mean over observed frames of the weighted mean over points of |p_hat - p|^2 (m^2).
-
-    predicted, target [F, N, 2]; weights [N] (0 on kinematic points)."""
-    squared = (predicted.to(target.dtype) - target).square().sum(dim=2)  # [F, N] m^2
-    return (squared * weights).sum(dim=1).mean() / weights.sum()
-
-
 class InverseProblem:
     def __init__(
         self,
@@ -51,8 +44,7 @@ class InverseProblem:
         material_id: np.ndarray,  # [N]
         feature_width: int,  # 1: [tan phi]; 2: [tan phi, c / 100 kPa]
         forward: ForwardModel,
-        target: np.ndarray,  # [F, N, 2] m
-        weights: np.ndarray,  # [N]
+        data_loss: DataLoss,  # predicted positions [F, N, 2] (m) -> m² (runout.inverse.loss)
         device: str = "cpu",
         dtype: torch.dtype = torch.float32,  # of the features handed to the forward model
     ):
@@ -67,8 +59,7 @@ class InverseProblem:
         self.rows = torch.tensor([material_names.index(p.material) for p in free], device=self.device)
         self.cols = torch.tensor([0 if p.prop == "phi" else 1 for p in free], device=self.device)
         self.material_id = torch.as_tensor(material_id, device=self.device)
-        self.target = torch.tensor(target, **f64)
-        self.weights = torch.tensor(weights, **f64)
+        self.data_loss = data_loss
 
     def features(self, values: torch.Tensor) -> torch.Tensor:
         """[N, k] per-point features from the free values [P] (degrees, kPa); differentiable."""
@@ -79,7 +70,7 @@ class InverseProblem:
     def loss(self, values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(loss in m^2, predicted positions [F, N, 2])."""
         predicted = self.forward(self.features(values))
-        return weighted_mse(predicted, self.target, self.weights), predicted
+        return self.data_loss(predicted), predicted
 
     def evaluate(self, values: np.ndarray) -> Evaluation:
         """Loss and its gradient w.r.t. the free values (physical units), with costs."""

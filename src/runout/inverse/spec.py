@@ -26,10 +26,11 @@ PROPERTIES = {
     "c": ("cohesion", "kPa", 0.0, MAX_STRENGTH),
 }
 WEIGHTINGS = ("uniform", "displacement")
+LOSS_KINDS = ("positions", "thickness")
 
 _TOP_KEYS = {"scene", "target", "parameters", "loss", "optimiser", "rollout"}
 _TARGET_KEYS = {"trajectory", "positions", "frames"}
-_LOSS_KEYS = {"weighting", "front_weight"}
+_LOSS_KEYS = {"kind", "weighting", "front_weight", "bin_width"}
 _OPTIMISER_KEYS = {"max_iterations", "max_evaluations", "ftol", "gtol"}
 _ROLLOUT_KEYS = {"steps"}
 _FREE_KEYS = {"initial", "lower", "upper"}
@@ -74,8 +75,10 @@ class TargetSpec:
 
 @dataclass(frozen=True)
 class LossSpec:
-    weighting: str = "uniform"  # or "displacement": w = 1 + front_weight * |d| / max |d|
+    kind: str = "positions"  # or "thickness": the soil's thickness profile along x (runout.inverse.loss)
+    weighting: str = "uniform"  # or "displacement": w = 1 + front_weight * |d| / max |d| (positions only)
     front_weight: float = 4.0
+    bin_width: float | None = None  # m, the thickness profile's bins; None: two point spacings
 
 
 @dataclass(frozen=True)
@@ -287,12 +290,26 @@ def _loss(table, source: Path) -> LossSpec:
     weighting = table.get("weighting", "uniform")
     if weighting not in WEIGHTINGS:
         raise InputError(f"{source}: loss.weighting = {weighting!r} must be one of {', '.join(WEIGHTINGS)}.")
-    spec = LossSpec(weighting=weighting)
+    kind = table.get("kind", "positions")
+    if kind not in LOSS_KINDS:
+        raise InputError(f"{source}: loss.kind = {kind!r} must be one of {', '.join(LOSS_KINDS)}.")
+    if kind == "thickness" and weighting != "uniform":
+        raise InputError(f"{source}: loss.weighting = {weighting!r} weights points, which loss.kind = \"thickness\" "
+                         "does not compare one by one; leave weighting out or use kind = \"positions\".")
+    if kind == "positions" and "bin_width" in table:
+        raise InputError(f"{source}: loss.bin_width sets the bins of loss.kind = \"thickness\"; "
+                         "the positions loss has none, so leave it out.")
+    spec = LossSpec(kind=kind, weighting=weighting)
     if "front_weight" in table:
         w = _number(table, "front_weight", "loss", source)
         if w < 0:
             raise InputError(f"{source}: loss.front_weight = {w:g} must be zero or positive.")
         spec = replace(spec, front_weight=w)
+    if "bin_width" in table:
+        b = _number(table, "bin_width", "loss", source)
+        if not 0 < b <= 1000:
+            raise InputError(f"{source}: loss.bin_width = {b:g} m is outside the allowed range (0, 1000] m.")
+        spec = replace(spec, bin_width=b)
     return spec
 
 
