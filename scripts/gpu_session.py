@@ -6,8 +6,9 @@ In one wall-clock budget it
 1. generates the stage's dataset with a fixed seed (deterministic: every session makes the
    same data; parts already on disk are kept, so a warm machine skips this step),
 2. picks its starting weights: for `base`, models/base.pt if present; for `finetune`,
-   models/slope.pt if present, else models/base.pt (transfer: the encoder widened with a
-   zero cohesion column), else none (random weights),
+   models/slope-train.pt (the CPU campaign's run) or models/slope.pt if present, else
+   models/base.pt (transfer: the encoder widened with a zero cohesion column), else none
+   (random weights); a start trained with an onset schedule goes on in the phase it reached,
 3. measures training steps/s with a short first run, then trains in chunks sized from the
    measured rate until the budget (less a reserve for the evaluation) is spent,
 4. rolls the trained model out on the first test trajectory and compares it with the MPM,
@@ -19,6 +20,10 @@ Training uses the recipe (runout.train_settings.RECIPE), and a committed checkpo
 before it (solver 3) is never a start. The weights file holds no optimiser state (Adam's moments would make it three times larger
 than the 16 MB a shipped model may take), so Adam restarts each session; the learning rate
 continues from the cumulative step. Needs torch, numpy, scipy, matplotlib and tqdm; not typer.
+To go on with the CPU campaign's model (8 m cells, 260 fine-tuning scenes, latent 64, 5
+message-passing steps), give its data settings: `--cell-size 8 --count 260` (the start's
+network size is taken from it); judge the result on 16 scenes from rest before it replaces
+models/slope.pt (scripts/evaluate_model.py).
 """
 
 from __future__ import annotations
@@ -151,7 +156,7 @@ def starting_checkpoint(args: argparse.Namespace, meta: dict) -> tuple[Path | No
     """The checkpoint to start from (None: random weights) and why others were passed over."""
     if args.init is not None:
         return args.init, []
-    names = ["base.pt"] if args.stage == "base" else ["slope.pt", "base.pt"]
+    names = ["base.pt"] if args.stage == "base" else ["slope-train.pt", "slope.pt", "base.pt"]
     skipped = []
     for name in names:
         path = args.models / name
@@ -194,7 +199,7 @@ def train_for_budget(args: argparse.Namespace, init: Path | None, budget: Budget
 
     shutil.rmtree(args.run, ignore_errors=True)
     network = NetworkConfig(latent=args.latent, hidden=args.latent, message_passing_steps=args.message_passing)
-    recipe = RECIPE | ({"lr_init": args.lr} if args.lr is not None else {})
+    recipe = RECIPE | ({"lr_init": args.lr} if args.lr is not None else {}) | continued_onset(init)
     cfg = TrainConfig(
         data=args.data, out=args.run, steps=MEASURE_STEPS, device=args.device, init=init,
         network=network, bf16=args.bf16, valid_every=0, log_every=10, save_every=10**9, **recipe,
@@ -213,6 +218,24 @@ def train_for_budget(args: argparse.Namespace, init: Path | None, budget: Budget
         print(f"trained to step {steps}: {rate:.3g} steps/s", flush=True)
     return {"steps": steps, "first_steps_per_s": round(first_rate, 4), "chunks": chunks,
             "train_wall_s": round(time.monotonic() - t0, 1)}
+
+
+def continued_onset(init: Path | None) -> dict:
+    """A start that was trained with an onset schedule goes on in the phase it had reached (the
+    campaign's run, models/slope-train.pt, is deep in its later phases), instead of replaying
+    the schedule from its first phase, which draws 40 % of the windows from the first frames and
+    made the fine-tune overdrive (docs/training.md, fine-tune chunk 1). {} for a fresh start."""
+    from runout.gns.checkpoint import read_checkpoint
+    from runout.train_settings import TrainConfig, onset_at
+
+    if init is None:
+        return {}
+    ckpt = read_checkpoint(init)
+    schedule = tuple(tuple(entry) for entry in ckpt.get("train", {}).get("onset_schedule", ()))
+    if not schedule:
+        return {}
+    share, frames = onset_at(TrainConfig(data=Path("."), out=Path("."), onset_schedule=schedule), int(ckpt.get("step", 0)))
+    return {"onset_schedule": ((0, share, frames),)}
 
 
 def export_model(args: argparse.Namespace, init: Path | None, record: dict) -> Path:

@@ -152,6 +152,18 @@ def test_a_committed_model_trained_before_the_recipe_is_passed_over(tmp_path):
     assert start is None and len(skipped) == 1 and "trained before the recipe" in skipped[0]
 
 
+def test_a_session_from_a_trained_run_goes_on_in_its_onset_phase(tmp_path):
+    """A GPU session started from the campaign's run keeps the onset phase that run had
+    reached, instead of replaying the schedule's first phase (40 % of windows from the start)."""
+    ckpt = read_checkpoint(tiny_model(tmp_path / "run", width=2, radius=4.6))
+    ckpt["train"]["onset_schedule"] = ((0, 0.4, 4), (12000, 0.5, 2), (22231, 0.1, 4), (104237, 0.3, 4))
+    for step, phase in ((5000, (0.4, 4)), (30000, (0.1, 4)), (110000, (0.3, 4))):
+        ckpt["step"] = step
+        torch.save(ckpt, tmp_path / "start.pt")
+        assert session.continued_onset(tmp_path / "start.pt") == {"onset_schedule": ((0, *phase),)}
+    assert session.continued_onset(None) == {}
+
+
 def test_a_session_whose_deadline_passes_during_generation_says_so(tmp_path):
     args = session_args(tmp_path, "finetune", tmp_path / "new_data", minutes="0.01", reserve="0.599")
     assert session.main(args) == 0
