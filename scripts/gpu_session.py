@@ -226,15 +226,15 @@ def continued_onset(init: Path | None) -> dict:
     the schedule from its first phase, which draws 40 % of the windows from the first frames and
     made the fine-tune overdrive (docs/training.md, fine-tune chunk 1). {} for a fresh start."""
     from runout.gns.checkpoint import read_checkpoint
-    from runout.train_settings import TrainConfig, onset_at
+    from runout.train_settings import schedule_phase
 
     if init is None:
         return {}
     ckpt = read_checkpoint(init)
-    schedule = tuple(tuple(entry) for entry in ckpt.get("train", {}).get("onset_schedule", ()))
+    schedule = ckpt.get("train", {}).get("onset_schedule", ())
     if not schedule:
         return {}
-    share, frames = onset_at(TrainConfig(data=Path("."), out=Path("."), onset_schedule=schedule), int(ckpt.get("step", 0)))
+    share, frames = schedule_phase(schedule, int(ckpt.get("step", 0)), schedule[0][1:])
     return {"onset_schedule": ((0, share, frames),)}
 
 

@@ -144,8 +144,13 @@ def parse_onset_schedule(text: str | None) -> tuple[tuple[int, float, int], ...]
 def onset_at(cfg: TrainConfig, step: int) -> tuple[float, int]:
     """The (onset share, onset frames) of the training step `step`: the last --onset-schedule
     entry that has begun, else --onset-share and --onset-frames."""
-    share, frames = cfg.onset_share, cfg.onset_frames
-    for begin, entry_share, entry_frames in cfg.onset_schedule:
+    return schedule_phase(cfg.onset_schedule, step, (cfg.onset_share, cfg.onset_frames))
+
+
+def schedule_phase(schedule, step: int, default: tuple[float, int]) -> tuple[float, int]:
+    """(share, frames) of the last (begin, share, frames) entry of `schedule` begun by `step`, else `default`."""
+    share, frames = default
+    for begin, entry_share, entry_frames in schedule:
         if step >= begin:
             share, frames = entry_share, entry_frames
     return share, frames
