@@ -194,7 +194,7 @@ def _misfit(path: Path, meta: dict) -> str | None:
 def train_for_budget(args: argparse.Namespace, init: Path | None, budget: Budget) -> dict:
     """Train in chunks until the budget is spent; the measured rates and step count."""
     from runout.gns.simulator import NetworkConfig
-    from runout.train import TrainConfig, train
+    from runout.train import TrainConfig, continued_onset, train
     from runout.train_settings import RECIPE
 
     shutil.rmtree(args.run, ignore_errors=True)
@@ -218,24 +218,6 @@ def train_for_budget(args: argparse.Namespace, init: Path | None, budget: Budget
         print(f"trained to step {steps}: {rate:.3g} steps/s", flush=True)
     return {"steps": steps, "first_steps_per_s": round(first_rate, 4), "chunks": chunks,
             "train_wall_s": round(time.monotonic() - t0, 1)}
-
-
-def continued_onset(init: Path | None) -> dict:
-    """A start that was trained with an onset schedule goes on in the phase it had reached (the
-    campaign's run, models/slope-train.pt, is deep in its later phases), instead of replaying
-    the schedule from its first phase, which draws 40 % of the windows from the first frames and
-    made the fine-tune overdrive (docs/training.md, fine-tune chunk 1). {} for a fresh start."""
-    from runout.gns.checkpoint import read_checkpoint
-    from runout.train_settings import schedule_phase
-
-    if init is None:
-        return {}
-    ckpt = read_checkpoint(init)
-    schedule = ckpt.get("train", {}).get("onset_schedule", ())
-    if not schedule:
-        return {}
-    share, frames = schedule_phase(schedule, int(ckpt.get("step", 0)), schedule[0][1:])
-    return {"onset_schedule": ((0, share, frames),)}
 
 
 def export_model(args: argparse.Namespace, init: Path | None, record: dict) -> Path:

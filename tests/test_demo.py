@@ -15,7 +15,7 @@ from runout.cli import app
 from runout.errors import InputError
 from runout.gns.checkpoint import read_checkpoint
 from runout.gns.simulator import NetworkConfig
-from runout.train import TrainConfig, train
+from runout.train import TrainConfig, continued_onset, train
 from runout.train_settings import RECIPE
 from test_gns_synthetic import write_dataset
 
@@ -160,8 +160,8 @@ def test_a_session_from_a_trained_run_goes_on_in_its_onset_phase(tmp_path):
     for step, phase in ((5000, (0.4, 4)), (30000, (0.1, 4)), (110000, (0.3, 4))):
         ckpt["step"] = step
         torch.save(ckpt, tmp_path / "start.pt")
-        assert session.continued_onset(tmp_path / "start.pt") == {"onset_schedule": ((0, *phase),)}
-    assert session.continued_onset(None) == {}
+        assert continued_onset(tmp_path / "start.pt") == {"onset_schedule": ((0, *phase),)}
+    assert continued_onset(None) == {}
 
 
 def test_a_session_whose_deadline_passes_during_generation_says_so(tmp_path):

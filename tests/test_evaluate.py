@@ -15,7 +15,7 @@ from runout.evaluate.columns import CSV_COLUMNS
 from runout.evaluate.diagnostics import sigma_distance
 from runout.evaluate.inverse_study import spec_text
 from runout.evaluate.scenes import EXAMPLES, example_scene
-from runout.gns.checkpoint import save_checkpoint
+from runout.gns.checkpoint import read_checkpoint, save_checkpoint
 from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.inverse import load_inverse_spec
@@ -232,6 +232,9 @@ def test_sensitivity_fine_tunes_each_subset_under_both_budgets(tmp_path):
     assert steps == {("steps", 1): 2, ("steps", 2): 2, ("epochs", 1): 5, ("epochs", 2): 9}  # 9 windows per simulation (5 from rest), batch 2
     assert all(r["p25_mse_m2"] <= r["median_mse_m2"] <= r["p75_mse_m2"] for r in s["results"])
     assert (tmp_path / "out" / "sensitivity" / "rollout_mse.png").is_file()
+    # each subset is fine-tuned with the recipe that trained the shipped model, not TrainConfig's bare defaults
+    settings = read_checkpoint(tmp_path / "out" / "sensitivity" / "steps_1" / "checkpoint.pt")["train"]
+    assert (settings["noise"], settings["exact_rest"], settings["pushforward"], settings["ema"]) == (0.01, True, 2, 0.999)
 
 
 def test_report_names_the_model_and_links_existing_figures(studies, tmp_path):

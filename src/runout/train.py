@@ -52,6 +52,7 @@ from runout.outputs import write_atomic
 from runout.simfiles import read_metadata
 from runout.train_settings import (  # noqa: F401  (the settings, re-exported)
     OPTION_NAMES, PUSHFORWARD_LIMITS, SETTING_LIMITS, Limit, TrainConfig, check_settings, onset_at, option_name,
+    schedule_phase,
 )
 
 CHECKPOINT = "checkpoint.pt"
@@ -331,6 +332,22 @@ class StopRequest:
     def __exit__(self, *exc) -> None:
         if self._previous is not None:
             signal.signal(signal.SIGINT, self._previous)
+
+
+def continued_onset(init: Path | None) -> dict:
+    """The onset schedule for a run started from INIT (--init): a start trained with an onset
+    schedule goes on in the phase it had reached (the campaign's run is deep in its later
+    phases), instead of replaying the schedule from its first phase, which draws 40 % of the
+    windows from the first frames and made the fine-tune overdrive (docs/training.md,
+    fine-tune chunk 1). {} for a fresh start or a start trained without a schedule."""
+    if init is None:
+        return {}
+    ckpt = read_checkpoint(init)
+    schedule = ckpt.get("train", {}).get("onset_schedule", ())
+    if not schedule:
+        return {}
+    share, frames = schedule_phase(schedule, int(ckpt.get("step", 0)), schedule[0][1:])
+    return {"onset_schedule": ((0, share, frames),)}
 
 
 def cpu_has_native_bf16() -> bool:

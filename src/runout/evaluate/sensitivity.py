@@ -38,7 +38,8 @@ from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations
 from runout.metrics import position_mse
 from runout.simfiles import iter_simulations, read_metadata, write_simulations
-from runout.train import CHECKPOINT, TrainConfig, train
+from runout.train import CHECKPOINT, TrainConfig, continued_onset, cpu_has_native_bf16, train
+from runout.train_settings import RECIPE
 
 
 
@@ -86,11 +87,18 @@ def steps_per_epoch(subset: Path, batch_size: int, schema: FeatureSchema) -> int
 
 
 def fine_tune(cfg: SensitivityConfig, subset: Path, run_dir: Path, steps: int) -> Path:
-    """Fine-tune cfg.init on the subset to `steps` steps (resuming a run already there)."""
+    """Fine-tune cfg.init on the subset to `steps` steps (resuming a run already there), with
+    the settings that trained the shipped model: the recipe (runout.train_settings.RECIPE:
+    noise, exact rest, pushforward, weight average), the learning rate going on from the
+    model's step, its onset phase continued and its own network inputs; bf16 on a CPU that
+    multiplies it natively. (TrainConfig's bare defaults, noise 0.1 among them, would teach the
+    model not to start from rest: docs/training.md, round 1.)"""
+    bf16 = torch.device(cfg.device).type == "cpu" and cpu_has_native_bf16()
+    recipe = RECIPE | {"overburden": None} | continued_onset(cfg.init)
     train(TrainConfig(
         data=subset, out=run_dir, steps=steps, batch_size=cfg.batch_size, device=cfg.device, init=cfg.init,
-        resume=(run_dir / CHECKPOINT).is_file(), valid_every=0,
-        log_every=max(1, min(100, steps // 50)), save_every=max(1, min(10_000, steps // 10)),
+        resume=(run_dir / CHECKPOINT).is_file(), valid_every=0, bf16=bf16,
+        log_every=max(1, min(100, steps // 50)), save_every=max(1, min(10_000, steps // 10)), **recipe,
     ))
     return run_dir
 
