@@ -31,6 +31,10 @@ studies=${STUDIES:-columns slope diagnostics inverse}
 doc=${DOC:-docs/results.md}
 read -r -a extra <<< "${EXTRA:-}"   # options added to every MPM-backed study (a quick look: not the paper's settings)
 [ -f "$model" ] || { echo "final_evaluation.sh: $model: no such model file." >&2; exit 2; }
+sinit=${SENSITIVITY_INIT:-models/base-best20000.pt}   # the base every subset of the data-size study is fine-tuned from
+if [ "${SENSITIVITY:-0}" = 1 ] && [ ! -f "$sinit" ]; then
+  echo "final_evaluation.sh: SENSITIVITY_INIT=$sinit: no such model file (the base every subset is fine-tuned from)." >&2; exit 2
+fi
 mkdir -p "$out"
 
 timed() {  # $1: study; the rest: its command
@@ -53,7 +57,7 @@ for study in $studies; do
   esac
 done
 if [ "${SENSITIVITY:-0}" = 1 ]; then
-  timed sensitivity "$runout" evaluate sensitivity --data data/ft8 --init "${SENSITIVITY_INIT:-models/base-best20000.pt}" --out "$out" --split valid \
+  timed sensitivity "$runout" evaluate sensitivity --data data/ft8 --init "$sinit" --out "$out" --split valid \
     --sizes "${SIZES:-10,50,130,250}" --steps "${STEPS:-3000}" --epochs 1 --held-out 16 --no-progress
 fi
 "$runout" evaluate report --out "$out" --doc "$doc"
