@@ -5,7 +5,9 @@
 1. Rollouts from rest (frame 0 held, as users' scenes start) of the first --limit scenes of
    DATA/test.npz (held out from training; --split valid for the scenes the pilots are judged on), scored against the MPM beside standing still:
    mean position error (m), front errors relative to the fronts' travel, extent runout
-   error, mean displacement (runout.evaluate.heldout).
+   error, mean displacement (runout.evaluate.heldout). With --mirrored, the same scenes
+   reflected left-right as well (a model that learned the physics, not the side the training
+   slopes face, scores them alike).
 2. A column collapse (examples/column_a1.toml: 150 x 150 m, phi 22.5 deg, c 25 kPa) filled
    at the model's point spacing, run by the MPM and by the GNS from rest for --frames
    frames: normalised runout of each and their difference; column.png shows both.
@@ -27,12 +29,12 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 
 
-def heldout(simulator, data: Path, split: str = "test", limit: int | None = None) -> dict:
+def heldout(simulator, data: Path, split: str = "test", limit: int | None = None, mirrored: bool = False) -> dict:
     """The first `limit` scenes of the split rolled out from rest, scored beside standing
-    still (runout.evaluate.heldout)."""
+    still (runout.evaluate.heldout); mirrored: the scenes reflected left-right."""
     from runout.evaluate.heldout import evaluate_heldout
 
-    return evaluate_heldout(simulator, data, split, limit)
+    return evaluate_heldout(simulator, data, split, limit, mirrored=mirrored)
 
 
 def curves(log: Path, path: Path) -> dict:
@@ -107,6 +109,8 @@ def main() -> None:
     p.add_argument("--limit", type=int, default=16, help="Roll out the first LIMIT scenes of the split (at least 16 for a verdict).")
     p.add_argument("--split", choices=("test", "valid"), default="test", help="Held-out split: test, or valid (the pilots' 16 scenes).")
     p.add_argument("--log", type=Path, default=None, help="The run's log.jsonl: draw OUT/curves.png from it.")
+    p.add_argument("--mirrored", action="store_true", help="Also roll out the same scenes reflected left-right "
+                   "(the families' slopes all fail to the right; a model that learned the physics scores both alike).")
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args()
     from runout.gns.checkpoint import load_simulator
@@ -114,26 +118,30 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     args.out.mkdir(parents=True, exist_ok=True)
     simulator = load_simulator(args.model)
-    t0 = time.perf_counter()
-    key = f"{args.split}_split"
-    metrics = {"model": str(args.model), key: heldout(simulator, args.data, args.split, args.limit)}
-    metrics[key]["rollout_wall_s"] = round(time.perf_counter() - t0, 1)
+    metrics = {"model": str(args.model)}
+    keys = [f"{args.split}_split"] + ([f"{args.split}_split_mirrored"] if args.mirrored else [])
+    for key in keys:
+        t0 = time.perf_counter()
+        metrics[key] = heldout(simulator, args.data, args.split, args.limit, mirrored=key.endswith("mirrored"))
+        metrics[key]["rollout_wall_s"] = round(time.perf_counter() - t0, 1)
     if not args.no_column:
         metrics["column"] = column(simulator, args.column, args.frames, args.out)
     if args.log is not None:
         metrics["curves"] = curves(args.log, args.out / "curves.png")
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=1))
     print(json.dumps(metrics, indent=1))
-    model, still = metrics[key]["model"], metrics[key]["standing_still"]
-    print(f"{args.model}: {model['scenes']} {args.split} scenes from rest: position error {model['position_error_m']:.2f} m "
-          f"(standing still {still['position_error_m']:.2f}), fronts {100 * model['front_error']:.1f} % of their travel, "
-          f"extent runout error {100 * model['runout_error']:.1f} %, mean displacement {model['displacement_m']:.1f} m "
-          f"(MPM {model['displacement_mpm_m']:.1f}); {metrics[key]['rollout_wall_s']:.0f} s")
-    for kind, scores in metrics[key]["by_kind"].items():
-        m, still = scores["model"], scores["standing_still"]
-        print(f"  {kind:15s} {m['scenes']:2d} scenes: position error {m['position_error_m']:.2f} m "
-              f"(standing still {still['position_error_m']:.2f}), fronts {100 * m['front_error']:.1f} %, "
-              f"extent {100 * m['runout_error']:.1f} %, mean displacement {m['displacement_m']:.1f} m (MPM {m['displacement_mpm_m']:.1f})")
+    for key in keys:
+        model, still = metrics[key]["model"], metrics[key]["standing_still"]
+        scenes = f"{args.split} scenes{' mirrored' if key.endswith('mirrored') else ''}"
+        print(f"{args.model}: {model['scenes']} {scenes} from rest: position error {model['position_error_m']:.2f} m "
+              f"(standing still {still['position_error_m']:.2f}), fronts {100 * model['front_error']:.1f} % of their travel, "
+              f"extent runout error {100 * model['runout_error']:.1f} %, mean displacement {model['displacement_m']:.1f} m "
+              f"(MPM {model['displacement_mpm_m']:.1f}); {metrics[key]['rollout_wall_s']:.0f} s")
+        for kind, scores in metrics[key]["by_kind"].items():
+            m, still = scores["model"], scores["standing_still"]
+            print(f"  {kind:15s} {m['scenes']:2d} scenes: position error {m['position_error_m']:.2f} m "
+                  f"(standing still {still['position_error_m']:.2f}), fronts {100 * m['front_error']:.1f} %, "
+                  f"extent {100 * m['runout_error']:.1f} %, mean displacement {m['displacement_m']:.1f} m (MPM {m['displacement_mpm_m']:.1f})")
 
 
 if __name__ == "__main__":

@@ -9,7 +9,8 @@ the squared error of the normalised acceleration over the non-kinematic points w
 the paper's learning rate lr(i) = (1e-4 - 1e-6) 0.1^(i / 5e6) + 1e-6. With pushforward N,
 each step first draws n uniformly from 0..N, rolls the model out n steps from the true
 windows without gradient, and trains on the window so produced (noise on top) against the
-true frame n steps further on. The random numbers of a step come from generators seeded by
+true frame n steps further on. With mirror S, each window is first reflected left-right about
+the domain's centre with probability S (runout.gns.samples.mirrored). The random numbers of a step come from generators seeded by
 (seed, step, rank), and n from one seeded by (seed, step) alone, so every process unrolls as
 many steps, and a run resumed from any checkpoint repeats exactly what an unbroken run would
 have done (bitwise on CPU). Under torchrun, the forward goes through the DDP wrapper, which
@@ -43,7 +44,7 @@ from runout.gns.checkpoint import (
     widen_material_features,
 )
 from runout.gns.rollout import rollout_trajectory
-from runout.gns.samples import Simulations
+from runout.gns.samples import Simulations, mirrored
 from runout.gns.schema import FeatureSchema
 from runout.gns.simulator import Case, Normalisation, Simulator
 from runout.gns.training_range import measure as measure_ranges
@@ -370,6 +371,7 @@ def _native_bf16(cfg: TrainConfig, ctx: Context) -> TrainConfig:
 def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> torch.Tensor:
     sampler, noise_gen = _generators(cfg.seed, step, ctx)
     batch = data.sample(cfg.batch_size, sampler, unrolled_steps(cfg.seed, step, cfg.pushforward), *onset_at(cfg, step))
+    batch = mirrored(batch, bounds[0], cfg.mirror, sampler)
     case = Case.of(batch.particle_type, bounds, batch.window[:, 0], batch.graph, simulator.point_spacing)
     autocast = torch.autocast(ctx.device.type, dtype=torch.bfloat16) if cfg.bf16 else nullcontext()
     with autocast:  # the model's own rollout from the true window, without gradient (none when batch.unroll is 0)

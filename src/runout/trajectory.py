@@ -66,6 +66,14 @@ class Trajectory:
             return self
         return replace(self, positions=self.positions[::stride], frame_dt=self.frame_dt * stride, info=dict(self.info))
 
+    def mirrored(self) -> "Trajectory":
+        """The same run reflected left-right about its domain's centre, x -> x_lo + x_hi - x
+        (start velocities with it): the run the physics gives for the mirrored scene."""
+        positions = self.positions.copy()
+        positions[..., 0] = self.bounds[0][0] + self.bounds[0][1] - positions[..., 0]
+        velocity = None if self.initial_velocity is None else self.initial_velocity * np.array([-1.0, 1.0])
+        return replace(self, positions=positions, initial_velocity=velocity, name=f"{self.name} mirrored", info=dict(self.info))
+
     def first_nonfinite_frame(self) -> int | None:
         """The first frame holding a NaN or infinite position (a diverged run), or None."""
         bad = ~np.isfinite(self.positions).all(axis=(1, 2))

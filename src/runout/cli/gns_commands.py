@@ -44,6 +44,7 @@ def train(
     onset_frames: int = typer.Option(TrainConfig.onset_frames, "--onset-frames", help="Dataset frames from the earliest window start that count as the onset (--onset-share)."),
     onset_schedule: str = typer.Option("", "--onset-schedule", help="Onset settings by step, STEP:SHARE:FRAMES,... e.g. 0:0.4:4,14000:0.5:2,24000:0.1:4 (the recipe's three phases, docs/training.md): from each STEP on, windows are drawn as --onset-share SHARE --onset-frames FRAMES would; before the first STEP, those two options hold."),
     overburden: bool = typer.Option(TrainConfig.overburden, "--overburden/--no-overburden", help="Give the network each point's depth of soil above it in its column (m / 100; at rest the overburden that sets its stress), which 5 message-passing steps of 9.2 m cannot see on a slope taller than 46 m. New runs only; --resume and --init keep the checkpoint's (default: none)."),
+    mirror: float = typer.Option(TrainConfig.mirror, "--mirror", help="Share of the training windows reflected left-right about the domain's centre, 0-1 (the physics has no side; the slope families all fail to the right). The recipe's is 0.5."),
     static_tail: int = typer.Option(TrainConfig.static_tail, "--static-tail", help="Train only up to this many frames after a simulation's flow stops (soil slower than 0.05 m/s); default: every frame."),
     latent: int = typer.Option(NetworkConfig.latent, "--latent", help="Latent size of nodes and edges."),
     hidden: int = typer.Option(NetworkConfig.hidden, "--hidden", help="Units of each hidden MLP layer."),
@@ -76,6 +77,7 @@ def train(
         valid_trajectories=valid_trajectories, valid_frames=valid_frames,
         checkpoint_layers=checkpoint_layers, bf16=bf16, lr_decay_steps=lr_decay_steps,
         max_hours=max_hours, radius=radius, overburden=overburden, frame_stride=frame_stride, pushforward=pushforward, ema=ema, compile=compile_network,
+        mirror=mirror,
     )
     check_settings(cfg)
     checks.device(device, auto=True)

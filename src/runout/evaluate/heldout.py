@@ -72,11 +72,16 @@ def summarise(scenes: list[dict]) -> dict:
     }
 
 
-def evaluate_heldout(simulator, data: str | Path, split: str = "valid", count: int = 16, progress: bool = False) -> dict:
+def evaluate_heldout(simulator, data: str | Path, split: str = "valid", count: int = 16, progress: bool = False,
+                     mirrored: bool = False) -> dict:
     """The first `count` scenes of DATA/SPLIT.npz rolled out from rest over all their frames:
-    {"model": score(...), "standing_still": score(...)}."""
+    {"model": score(...), "standing_still": score(...)}. mirrored: each scene and its MPM run
+    reflected left-right (Trajectory.mirrored), which a model that learned the physics rather
+    than the side the training slopes face scores as it scores them unreflected."""
     from runout.dataset import split_trajectories
     truths = list(split_trajectories(data, split, count))
+    if mirrored:
+        truths = [t.mirrored() for t in truths]
     spacing = simulator.point_spacing
     predicted = rollout_all(simulator, truths, progress)
     result = {"model": score(predicted, truths, spacing),

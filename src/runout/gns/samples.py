@@ -16,14 +16,17 @@ also holds the true frames t + (history + 1) K, ..., t + (history + n) K, the la
 is then its target, so its start t must leave room for them. All simulations of a split live
 on the training device; a batch picks windows uniformly over every (simulation, start frame)
 pair that fits with a CPU generator (indices only) and slices the device tensors, so no data
-crosses to the device during training.
+crosses to the device during training. `mirrored` reflects a share of a batch's windows
+left-right about the domain's centre, a scene the physics allows as readily (the MPM's deposit
+of a mirror-symmetric mound is mirror-symmetric, tests/test_mpm_physics.py) and the families
+under-sample: every slope of families b and c fails to the right.
 """
 
 from __future__ import annotations
 
 import bisect
 import copy
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import torch
@@ -207,6 +210,25 @@ class Simulations:
         frames = frames.transpose(0, 1)  # [N, history + unroll + 1, 2]
         held = int((index[: self.history] == 0).sum())
         return frames[:, : self.history], frames[:, self.history :], self.particle_type[sim], self.material[sim], held
+
+
+def mirrored(batch: TrainingBatch, x_range, share: float, generator: torch.Generator) -> TrainingBatch:
+    """`batch` with each of its graphs, with probability `share` (drawn from `generator`, one
+    draw per graph), reflected left-right about the centre of the domain's x_range ([x_lo,
+    x_hi] in m, a pair or a tensor): x -> x_lo + x_hi - x in every window and future position;
+    y, types and materials unchanged. The walls stay where they are, so the reflected scene
+    lies in the same domain. share 0: the batch itself, and no draw."""
+    if share <= 0.0:
+        return batch
+    graphs = int(batch.graph.max()) + 1 if batch.graph.numel() else 0
+    flip = (torch.rand(graphs, generator=generator) < share).to(batch.graph.device)[batch.graph.long()]
+    axis = x_range[0] + x_range[1]
+
+    def reflect(positions: torch.Tensor) -> torch.Tensor:
+        x = torch.where(flip[:, None], axis - positions[..., 0], positions[..., 0])
+        return torch.stack([x, positions[..., 1]], dim=-1)
+
+    return replace(batch, window=reflect(batch.window), future=reflect(batch.future))
 
 
 def _last_moving_frame(positions: torch.Tensor, particle_type: torch.Tensor, still: float) -> int:
