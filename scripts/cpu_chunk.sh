@@ -29,7 +29,8 @@ FRAMES=480
 NET=(--latent 64 --hidden 64 --message-passing-steps 5 --batch-size 2)
 # The recipe (runout.train_settings.RECIPE, chosen by the pilots in docs/training.md, rounds 8-10):
 # learning rate and decay, noise 0.01 of the velocity std, no noise on the scene at rest,
-# pushforward 2, a weight average, and the onset of motion drawn in three phases
+# pushforward 2, a weight average, the onset of motion drawn in three phases, the overburden
+# input, and half the windows mirrored left-right (--mirror 0.5, from fine-tune chunk 7)
 read -r -a RECIPE <<< "$("${runout%/runout}/python" -c 'from runout.train_settings import recipe_options; print(" ".join(recipe_options()))')"
 # bf16 autocast only where the CPU multiplies bfloat16 natively (AVX512-BF16 or AMX): on an
 # AVX2-only CPU PyTorch falls back to a generic kernel, 14x slower than float32 (docs/training.md)
