@@ -10,10 +10,10 @@ the paper's learning rate lr(i) = (1e-4 - 1e-6) 0.1^(i / 5e6) + 1e-6. With pushf
 each step first draws n uniformly from 0..N, rolls the model out n steps from the true
 windows without gradient, and trains on the window so produced (noise on top) against the
 true frame n steps further on. With mirror S, each window is first reflected left-right about
-the domain's centre with probability S (runout.gns.samples.mirrored). The random numbers of a step come from generators seeded by
-(seed, step, rank), and n from one seeded by (seed, step) alone, so every process unrolls as
-many steps, and a run resumed from any checkpoint repeats exactly what an unbroken run would
-have done (bitwise on CPU). Under torchrun, the forward goes through the DDP wrapper, which
+the domain's centre with probability S (runout.gns.samples.mirrored). The random numbers of a
+step come from generators seeded by (seed, step, rank), and n from one seeded by (seed, step)
+alone, so every process unrolls as many steps, and a run resumed from any checkpoint repeats
+exactly what an unbroken run would have done (bitwise on CPU). Under torchrun, the forward goes through the DDP wrapper, which
 averages gradients across processes.
 """
 
