@@ -371,7 +371,7 @@ def _native_bf16(cfg: TrainConfig, ctx: Context) -> TrainConfig:
 def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> torch.Tensor:
     sampler, noise_gen = _generators(cfg.seed, step, ctx)
     batch = data.sample(cfg.batch_size, sampler, unrolled_steps(cfg.seed, step, cfg.pushforward), *onset_at(cfg, step))
-    batch = mirrored(batch, bounds[0], cfg.mirror, sampler)
+    batch = mirrored(batch, bounds[0], cfg.mirror, sampler, graphs=cfg.batch_size)
     case = Case.of(batch.particle_type, bounds, batch.window[:, 0], batch.graph, simulator.point_spacing)
     autocast = torch.autocast(ctx.device.type, dtype=torch.bfloat16) if cfg.bf16 else nullcontext()
     with autocast:  # the model's own rollout from the true window, without gradient (none when batch.unroll is 0)

@@ -212,15 +212,18 @@ class Simulations:
         return frames[:, : self.history], frames[:, self.history :], self.particle_type[sim], self.material[sim], held
 
 
-def mirrored(batch: TrainingBatch, x_range, share: float, generator: torch.Generator) -> TrainingBatch:
+def mirrored(batch: TrainingBatch, x_range, share: float, generator: torch.Generator,
+             graphs: int | None = None) -> TrainingBatch:
     """`batch` with each of its graphs, with probability `share` (drawn from `generator`, one
     draw per graph), reflected left-right about the centre of the domain's x_range ([x_lo,
     x_hi] in m, a pair or a tensor): x -> x_lo + x_hi - x in every window and future position;
     y, types and materials unchanged. The walls stay where they are, so the reflected scene
-    lies in the same domain. share 0: the batch itself, and no draw."""
+    lies in the same domain. share 0: the batch itself, and no draw. graphs: how many graphs the
+    batch holds, when the caller knows (it spares reading batch.graph back from a GPU each step)."""
     if share <= 0.0:
         return batch
-    graphs = int(batch.graph.max()) + 1 if batch.graph.numel() else 0
+    if graphs is None:
+        graphs = int(batch.graph.max()) + 1 if batch.graph.numel() else 0
     flip = (torch.rand(graphs, generator=generator) < share).to(batch.graph.device)[batch.graph.long()]
     axis = x_range[0] + x_range[1]
 
