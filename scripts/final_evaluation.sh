@@ -20,7 +20,7 @@
 # the second budget) with the recipe that trained the shipped model, and is off unless
 # SENSITIVITY=1: on the 2-core CPU (about 3.4 steps/s) 3,000 steps take about 15 min a subset,
 # one epoch of 250 scenes is about 60,000 steps (5 h), and the campaign's own 130,000 steps a
-# subset would be about 42 h for four sizes. Each study's wall time goes to
+# subset would be about 42 h for four sizes; BUDGETS=steps runs the fixed-step budget alone. Each study's wall time goes to
 # OUT/timings.txt; the report goes to DOC (default docs/results.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -58,7 +58,8 @@ for study in $studies; do
 done
 if [ "${SENSITIVITY:-0}" = 1 ]; then
   timed sensitivity "$runout" evaluate sensitivity --data data/ft8 --init "$sinit" --out "$out" --split valid \
-    --sizes "${SIZES:-10,50,130,250}" --steps "${STEPS:-3000}" --epochs 1 --held-out 16 --no-progress
+    --sizes "${SIZES:-10,50,130,250}" --steps "${STEPS:-3000}" --epochs 1 --budgets "${BUDGETS:-steps,epochs}" \
+    --held-out 16 --no-progress
 fi
 "$runout" evaluate report --out "$out" --doc "$doc"
 echo "wrote $doc; timings in $out/timings.txt"

@@ -237,6 +237,24 @@ def test_sensitivity_fine_tunes_each_subset_under_both_budgets(tmp_path):
     assert (settings["noise"], settings["exact_rest"], settings["pushforward"], settings["ema"]) == (0.01, True, 2, 0.999)
 
 
+def test_sensitivity_can_run_the_step_budget_alone(tmp_path):
+    data = write_dataset(tmp_path / "data", frames=10, n_train=2, width=1)
+    model = tiny_model(tmp_path / "base.pt", ("tan_phi",))
+    args = ["evaluate", "sensitivity", "--data", data, "--init", model, "--out", tmp_path / "out", "--sizes", "1,2",
+            "--steps", "2", "--budgets", "steps", "--split", "valid", "--held-out", "1", "--no-progress"]
+    result = invoke(args)
+    assert result.exit_code == 0, result.output
+    folder = tmp_path / "out" / "sensitivity"
+    s = json.loads((folder / "summary.json").read_text())
+    assert [(r["budget"], r["size"], r["steps"]) for r in s["results"]] == [("steps", 1, 2), ("steps", 2, 2)]
+    assert not any(folder.glob("epochs_*")) and (folder / "loss_history.png").is_file()
+    doc = tmp_path / "r.md"
+    assert invoke(["evaluate", "report", "--out", tmp_path / "out", "--doc", doc]).exit_code == 0
+    assert "fixed budget 2 steps (the other budget not run)" in doc.read_text()
+    bad = invoke(args[:-1] + ["--budgets", "hours", "--no-progress"])
+    assert str(bad.exception) == "--budgets 'hours' must name steps, epochs or both, e.g. steps,epochs."
+
+
 def test_report_names_the_model_and_links_existing_figures(studies, tmp_path):
     doc = tmp_path / "docs" / "results.md"
     result = invoke(["evaluate", "report", "--out", studies / "out", "--doc", doc])

@@ -214,6 +214,7 @@ def sensitivity(
     sizes: str = typer.Option(listed(SensitivityConfig.sizes), help="Subset sizes N (first N training simulations)."),
     steps: int = typer.Option(SensitivityConfig.steps, help="Fixed step budget per subset."),
     epochs: int = typer.Option(SensitivityConfig.epochs, help="Fixed epoch budget per subset."),
+    budgets: str = typer.Option(",".join(SensitivityConfig.budgets), help="Budgets to run: steps, epochs or steps,epochs."),
     held_out: int = typer.Option(SensitivityConfig.held_out, "--held-out", help="Held-out simulations rolled out per model."),
     split: str = typer.Option(SensitivityConfig.split, help="Held-out split file in --data (test or valid)."),
 ) -> None:
@@ -224,7 +225,8 @@ def sensitivity(
     if split not in ("test", "valid"):
         raise InputError(f"--split {split!r} must be test or valid.")
     checks.device(device)
-    cfg = SensitivityConfig(data, init, parse_sizes(sizes), steps, epochs, held_out, split, device=device, progress=progress)
+    cfg = SensitivityConfig(data, init, parse_sizes(sizes), steps, epochs, held_out, split, device=device, progress=progress,
+                            budgets=tuple(b.strip() for b in budgets.split(",") if b.strip()))
     _claim_out(out, "sensitivity", force)
     s = run_sensitivity(cfg, out)
     for r in s["results"]:

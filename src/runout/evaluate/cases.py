@@ -59,10 +59,13 @@ class SensitivityConfig:
     batch_size: int = 2
     device: str = "cpu"
     progress: bool = True
+    budgets: tuple[str, ...] = BUDGETS  # which of the two budgets to run (an epoch of 250 scenes is hours on a CPU)
 
     def check(self) -> None:
         if not self.sizes or min(self.sizes) < 1:
             raise InputError(f"--sizes {','.join(map(str, self.sizes))} must be positive whole numbers.")
+        if not self.budgets or not set(self.budgets) <= set(BUDGETS):
+            raise InputError(f"--budgets {','.join(self.budgets)!r} must name steps, epochs or both, e.g. steps,epochs.")
         for name, value in (("--steps", self.steps), ("--epochs", self.epochs), ("--held-out", self.held_out)):
             if value < 1:
                 raise InputError(f"{name} = {value} must be a positive whole number.")

@@ -150,11 +150,17 @@ def _inverse(s: dict) -> list[str]:
 
 def _sensitivity(s: dict) -> list[str]:
     lines = [f"Subsets of {s['data']} fine-tuned from the model above; rollout MSE on the first held-out "
-             f"simulations of its {s['split']} split; fixed budget {s['fixed_steps']:,} steps or {s['fixed_epochs']} epochs.", ""]
+             f"simulations of its {s['split']} split; {_budgets(s)}.", ""]
     lines += _table(["budget", "N", "steps", "median MSE (m²)", "25th pct", "75th pct", "held-out"],
                     [[r["budget"], r["size"], r["steps"], r["median_mse_m2"], r["p25_mse_m2"], r["p75_mse_m2"], r["held_out"]]
                      for r in s["results"]])
     return lines
+
+
+def _budgets(s: dict) -> str:
+    named = {"steps": f"{s['fixed_steps']:,} steps", "epochs": f"{s['fixed_epochs']} epochs"}
+    chosen = [named[b] for b in s.get("budgets", ("steps", "epochs"))]
+    return "fixed budget " + " or ".join(chosen) + ("" if len(chosen) == 2 else " (the other budget not run)")
 
 
 TITLES = {

@@ -1,5 +1,5 @@
 """Data-size study (paper §6): fine-tune subsets of N training simulations from one model,
-under a fixed step budget and under a fixed epoch budget, and measure rollout errors on
+under a fixed step budget and under a fixed epoch budget (either or both), and measure rollout errors on
 held-out simulations.
 
 A subset is the first N simulations of DATA/train.npz (with the full set's metadata, so
@@ -50,7 +50,7 @@ def run_sensitivity(cfg: SensitivityConfig, out: Path) -> dict:
     held_out = list(split_trajectories(cfg.data, cfg.split, cfg.held_out))
     schema = load_simulator(cfg.init).schema  # every subset is fine-tuned at the model's history and stride
     rows, runs = [], {}
-    for size, budget in itertools.product(cfg.sizes, BUDGETS):
+    for size, budget in itertools.product(cfg.sizes, cfg.budgets):
         subset = write_subset(cfg.data, folder / f"data_{size}", size)
         steps = cfg.steps if budget == "steps" else cfg.epochs * steps_per_epoch(subset, cfg.batch_size, schema)
         run_dir = fine_tune(cfg, subset, folder / f"{budget}_{size}", steps)
@@ -123,7 +123,7 @@ def write_rows(rows: list[dict], path: Path) -> None:
 
 def summarise(rows: list[dict], cfg: SensitivityConfig) -> dict:
     results = []
-    for budget, size in itertools.product(BUDGETS, cfg.sizes):
+    for budget, size in itertools.product(cfg.budgets, cfg.sizes):
         mse = np.array([r["rollout_mse_m2"] for r in rows if r["budget"] == budget and r["size"] == size])
         steps = next(r["steps"] for r in rows if r["budget"] == budget and r["size"] == size)
         p25, median, p75 = np.percentile(mse, [25, 50, 75])
@@ -136,5 +136,6 @@ def summarise(rows: list[dict], cfg: SensitivityConfig) -> dict:
         "split": cfg.split,
         "fixed_steps": cfg.steps,
         "fixed_epochs": cfg.epochs,
+        "budgets": list(cfg.budgets),
         "results": results,
     }

@@ -15,9 +15,10 @@ TITLES = {"steps": "fixed step budget", "epochs": "fixed epoch budget"}
 
 def draw_rollout_mse(results: list[dict], path: Path) -> None:
     """Bars of the median rollout MSE per subset size, error bars from the 25th to 75th percentile."""
-    fig = Figure(figsize=(10, 3.8), layout="constrained")
-    axes = fig.subplots(1, 2, sharey=True)
-    for ax, budget in zip(axes, TITLES):
+    budgets = [b for b in TITLES if any(r["budget"] == b for r in results)]
+    fig = Figure(figsize=(5 * len(budgets), 3.8), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, len(budgets), sharey=True))
+    for ax, budget in zip(axes, budgets):
         group = [r for r in results if r["budget"] == budget]
         median = np.array([r["median_mse_m2"] for r in group])
         low = median - np.array([r["p25_mse_m2"] for r in group])
@@ -30,9 +31,10 @@ def draw_rollout_mse(results: list[dict], path: Path) -> None:
 
 def draw_loss_histories(runs: dict[tuple[str, int], Path], path: Path) -> None:
     """Training loss against step for every run, one panel per budget."""
-    fig = Figure(figsize=(10, 3.8), layout="constrained")
-    axes = fig.subplots(1, 2)
-    for ax, budget in zip(axes, TITLES):
+    budgets = [b for b in TITLES if any(kind == b for kind, _ in runs)]
+    fig = Figure(figsize=(5 * len(budgets), 3.8), layout="constrained")
+    axes = np.atleast_1d(fig.subplots(1, len(budgets)))
+    for ax, budget in zip(axes, budgets):
         for (kind, size), run_dir in sorted(runs.items()):
             if kind == budget:
                 steps, losses = _loss_log(run_dir / LOG)
