@@ -237,7 +237,7 @@ def test_sensitivity_fine_tunes_each_subset_under_both_budgets(tmp_path):
     assert (settings["noise"], settings["exact_rest"], settings["pushforward"], settings["ema"]) == (0.01, True, 2, 0.999)
 
 
-def test_sensitivity_can_run_the_step_budget_alone(tmp_path):
+def test_sensitivity_can_run_the_step_budget_alone(tmp_path, capfd):
     data = write_dataset(tmp_path / "data", frames=10, n_train=2, width=1)
     model = tiny_model(tmp_path / "base.pt", ("tan_phi",))
     args = ["evaluate", "sensitivity", "--data", data, "--init", model, "--out", tmp_path / "out", "--sizes", "1,2",
@@ -247,6 +247,7 @@ def test_sensitivity_can_run_the_step_budget_alone(tmp_path):
     folder = tmp_path / "out" / "sensitivity"
     s = json.loads((folder / "summary.json").read_text())
     assert [(r["budget"], r["size"], r["steps"]) for r in s["results"]] == [("steps", 1, 2), ("steps", 2, 2)]
+    assert "GNS training" not in result.output + capfd.readouterr().err  # --no-progress reaches the fine-tunes' bars too
     assert not any(folder.glob("epochs_*")) and (folder / "loss_history.png").is_file()
     doc = tmp_path / "r.md"
     assert invoke(["evaluate", "report", "--out", tmp_path / "out", "--doc", doc]).exit_code == 0

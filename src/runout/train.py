@@ -134,7 +134,7 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Simu
     trainer = Trainer(
         simulator=simulator, model=DistributedDataParallel(simulator) if ctx.world > 1 else simulator,
         optimizer=optimizer, data=data, bounds=torch.tensor(meta["bounds"], dtype=torch.float32, device=ctx.device),
-        cfg=cfg, ctx=ctx, log=RunLog(Path(cfg.out), ctx, state["step"] if state else 0),
+        cfg=cfg, ctx=ctx, log=RunLog(Path(cfg.out), ctx, state["step"] if state else 0, cfg.progress),
         best=state.get("best_valid", float("inf")) if state else float("inf"),
         hooks=(*hooks, log_losses, validate, save), average=average,
     )
@@ -561,7 +561,7 @@ class RunLog:
     """log.jsonl (always), TensorBoard (when installed) and a progress bar, on rank 0.
     On resume, log lines beyond the checkpoint's step are dropped: they are redone."""
 
-    def __init__(self, out: Path, ctx: Context, start: int):
+    def __init__(self, out: Path, ctx: Context, start: int, progress: bool = True):
         self.ctx = ctx
         self.path = out / LOG
         self.bar = None
@@ -570,7 +570,7 @@ class RunLog:
             return
         out.mkdir(parents=True, exist_ok=True)
         before = self._truncate(start)
-        self.bar = tqdm(initial=start, desc="GNS training", unit="step", dynamic_ncols=True)
+        self.bar = tqdm(initial=start, desc="GNS training", unit="step", dynamic_ncols=True, disable=not progress)
         self.tensorboard = _tensorboard_writer(out)
         self.t0 = time.perf_counter() - before  # wall_s counts on across resumed chunks
 

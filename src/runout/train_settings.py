@@ -54,6 +54,7 @@ class TrainConfig:
     compile: bool = False  # run the network through torch.compile (1.19x the steps on one CPU thread, docs/training.md)
     ema: float = 0.0  # decay per step of the weight average saved as the model (0: the last step's weights)
     overburden: bool | None = None  # give the network each point's depth of soil above it (None: the checkpoint's, else no)
+    progress: bool = True  # a progress bar on stderr (log.jsonl is written either way)
     mirror: float = 0.0  # share of training windows mirrored left-right about the domain's centre (the physics has no side; slope families b and c all fail to the right)
 
 

@@ -58,6 +58,7 @@ def train(
     seed: int = typer.Option(TrainConfig.seed, "--seed", help="Seed of the initial weights, window sampling and noise."),
     bf16: bool = typer.Option(TrainConfig.bf16, "--bf16", help="Autocast the network to bfloat16 (faster on GPUs and on CPUs with AVX512-BF16 or AMX; elsewhere on a CPU it trains in float32, with a warning)."),
     checkpoint_layers: bool = typer.Option(TrainConfig.checkpoint_layers, "--checkpoint-layers/--no-checkpoint-layers", help="Recompute processor steps in backward to save memory."),
+    progress: bool = typer.Option(TrainConfig.progress, "--progress/--no-progress", help="Show a progress bar on stderr (log.jsonl records the run either way)."),
     force: bool = typer.Option(False, "--force", help="Start afresh in --out, removing a previous run or another command's results there."),
 ) -> None:
     """Train the GNS on an MPM dataset (one process, or many under torchrun). Ctrl-C saves
@@ -77,7 +78,7 @@ def train(
         valid_trajectories=valid_trajectories, valid_frames=valid_frames,
         checkpoint_layers=checkpoint_layers, bf16=bf16, lr_decay_steps=lr_decay_steps,
         max_hours=max_hours, radius=radius, overburden=overburden, frame_stride=frame_stride, pushforward=pushforward, ema=ema, compile=compile_network,
-        mirror=mirror,
+        mirror=mirror, progress=progress,
     )
     check_settings(cfg)
     checks.device(device, auto=True)

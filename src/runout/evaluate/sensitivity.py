@@ -97,7 +97,7 @@ def fine_tune(cfg: SensitivityConfig, subset: Path, run_dir: Path, steps: int) -
     recipe = RECIPE | {"overburden": None} | continued_onset(cfg.init)
     train(TrainConfig(
         data=subset, out=run_dir, steps=steps, batch_size=cfg.batch_size, device=cfg.device, init=cfg.init,
-        resume=(run_dir / CHECKPOINT).is_file(), valid_every=0, bf16=bf16,
+        resume=(run_dir / CHECKPOINT).is_file(), valid_every=0, bf16=bf16, progress=cfg.progress,
         log_every=max(1, min(100, steps // 50)), save_every=max(1, min(10_000, steps // 10)), **recipe,
     ))
     return run_dir
