@@ -256,14 +256,32 @@ def test_sensitivity_can_run_the_step_budget_alone(tmp_path, capfd):
     assert str(bad.exception) == "--budgets 'hours' must name steps, epochs or both, e.g. steps,epochs."
 
 
+def test_report_sets_the_papers_figures_beside_ours_at_the_papers_geometry():
+    from runout.evaluate.report import SECTIONS
+
+    columns = {"cases": 1, "grid": {"aspects": [1.0], "phis_deg": [0.0], "cohesions_kpa": [10.0], "frames": 600, "scale": 1.0},
+               "mean_ape_percent": 5.0, "median_ape_percent": 5.0, "gns_wall_s_total": 1.0, "percentile_cases": {},
+               "by_aspect": [{"aspect": 1.0, "cases": 1, "mean_ape_percent": 5.0, "cv_ape": 0.1, "r2": 0.9}]}
+    assert "| 1 | 1 | 5 | 3.55 | 0.1 | 0.9 | 0.994 |" in SECTIONS["columns"](columns)  # §5.1.1: a = 1
+    side = {"mpm": 300.0, "gns": 297.0, "ape_percent": 1.0}
+    slope = {"points": 10, "frames": 480, "scale": 1.0, "centre_m": 500.0, "runout_left_m": side, "runout_right_m": side,
+             "median_displacement_error_final_m": 1.0, "max_displacement_error_final_m": 2.0,
+             "wall_time_s": {"mpm": 1.0, "mpm_device": "cpu", "mpm_host": "h", "mpm_batch_size": 1, "gns": 2.0,
+                             "gns_device": "cpu", "gns_host": "h"}}
+    lines = SECTIONS["slope"](slope)
+    assert "| left | 300 | 297 | 1 | 1.57 |" in lines and "| right | 300 | 297 | 1 | 0.96 |" in lines  # §5.1.2
+
+
 def test_report_names_the_model_and_links_existing_figures(studies, tmp_path):
     doc = tmp_path / "docs" / "results.md"
     result = invoke(["evaluate", "report", "--out", studies / "out", "--doc", doc])
     assert result.exit_code == 0, result.output
     text = doc.read_text()
     assert "untrained (saved without a training run)" in text and "shrunk: not the paper's geometry" in text
-    assert "| aspect a | cases | mean error (%) | CV | R² |" in text and "Not run (`runout evaluate sensitivity`)." in text
-    assert "| inferred (GNS) | inferred (MPM-AD) |" in text and "s per L-BFGS-B iteration" in text
+    assert "| aspect a | cases | mean error (%) | paper (%) | CV | R² | paper R² |" in text
+    assert "Not run (`runout evaluate sensitivity`)." in text
+    assert "| 0.96 |" not in text and "| 3.55 |" not in text  # shrunk scenes are not the paper's: no paper figure beside them
+    assert "| inferred (GNS) | paper (GNS) | inferred (MPM-AD) |" in text and "s per L-BFGS-B iteration" in text
     links = [part.split(")")[0] for part in text.split("](")[1:]]
     assert links and all((doc.parent / link).is_file() for link in links)
 

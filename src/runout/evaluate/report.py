@@ -21,6 +21,13 @@ FIGURES = {
     "sensitivity": ("rollout_mse.png", "loss_history.png"),
 }
 
+# The paper's own figures, set beside ours (spec/paper.tex: §5.1.1 text and heatmap caption,
+# §5.1.2 last paragraph, §5.2 "converges to 46.17 kPa ... 40.24°" and "~1 minute" per step).
+PAPER_COLUMNS = {0.5: (7.26, 0.975), 1.0: (3.55, 0.994), 2.0: (6.73, 0.957)}  # a: (mean error %, R²)
+PAPER_SLOPE = {"left": 1.57, "right": 0.96}  # runout error (%) from x = 500 m
+PAPER_INVERSE = {"c[m1_downstream_lower]": 46.17, "phi[m3_downstream_upper]": 40.24}  # GNS answers (kPa, degrees)
+PAPER_INVERSE_SECONDS = 62.0  # per L-BFGS-B iteration on an NVIDIA Quadro RTX 5000 (20 s forward, 42 s gradient)
+
 
 def write_report(out: Path, doc: Path) -> Path:
     """Write `doc` (markdown) and copy the figures into <doc folder>/<doc name>_figures/."""
@@ -77,8 +84,9 @@ def _columns(s: dict) -> list[str]:
              f"{g['frames']} frames, geometry scale {g['scale']:g}{_shrunk(g['scale'])}.")
     lines = [setup, "", f"Mean absolute percentage error of L^n {s['mean_ape_percent']:.2f} %, median "
              f"{s['median_ape_percent']:.2f} %; GNS wall time for all cases {s['gns_wall_s_total']:.1f} s.", ""]
-    lines += _table(["aspect a", "cases", "mean error (%)", "CV", "R²"],
-                    [[b["aspect"], b["cases"], b["mean_ape_percent"], b["cv_ape"], b["r2"]] for b in s["by_aspect"]])
+    lines += _table(["aspect a", "cases", "mean error (%)", "paper (%)", "CV", "R²", "paper R²"],
+                    [[b["aspect"], b["cases"], b["mean_ape_percent"], _paper_column(b["aspect"], g["scale"], 0), b["cv_ape"], b["r2"],
+                      _paper_column(b["aspect"], g["scale"], 1)] for b in s["by_aspect"]])
     lines += ["", "Cases at the 25th, 50th and 75th error percentiles:", ""]
     lines += _table(["percentile", "a", "φ (°)", "c (kPa)", "L^n MPM", "L^n GNS", "error (%)"],
                     [[q, r["aspect"], r["phi_deg"], r["cohesion_kpa"], r["runout_norm_mpm"], r["runout_norm_gns"], r["ape_percent"]]
@@ -86,12 +94,17 @@ def _columns(s: dict) -> list[str]:
     return lines
 
 
+def _paper_column(aspect: float, scale: float, k: int) -> float | None:
+    """The paper's mean error (k = 0) or R² (k = 1) for this aspect, at the paper's geometry only."""
+    return PAPER_COLUMNS[aspect][k] if aspect in PAPER_COLUMNS and scale == 1 else None
+
+
 def _slope(s: dict) -> list[str]:
     w = s["wall_time_s"]
     lines = [f"{s['points']} soil points, {s['frames']} frames, geometry scale {s['scale']:g}{_shrunk(s['scale'])}; "
              f"runout measured from x = {s['centre_m']:g} m.", ""]
-    lines += _table(["side", "MPM (m)", "GNS (m)", "error (%)"],
-                    [[side, s[key]["mpm"], s[key]["gns"], s[key]["ape_percent"]]
+    lines += _table(["side", "MPM (m)", "GNS (m)", "error (%)", "paper (%)"],
+                    [[side, s[key]["mpm"], s[key]["gns"], s[key]["ape_percent"], PAPER_SLOPE[side] if s["scale"] == 1 else None]
                      for side, key in (("left", "runout_left_m"), ("right", "runout_right_m"))])
     lines += ["", f"Displacement error at the last frame: median {s['median_displacement_error_final_m']:.3g} m, "
               f"largest {s['max_displacement_error_final_m']:.3g} m.", "",
@@ -126,9 +139,9 @@ def _inverse(s: dict) -> list[str]:
              f"{s['iterations']} L-BFGS-B iterations ({s['evaluations']} evaluations, {s['message']}); "
              f"final data loss {s['final_data_loss_m2']:.4g} m².", ""]
     yardstick = s.get("yardstick")
-    header = ["parameter", "unit", "bounds", "initial", "true", "inferred (GNS)"]
-    rows = [[p["name"], p["unit"], f"[{p['lower']:g}, {p['upper']:g}]", p["initial"], p["true"], p["inferred"]]
-            for p in s["parameters"]]
+    header = ["parameter", "unit", "bounds", "initial", "true", "inferred (GNS)", "paper (GNS)"]
+    rows = [[p["name"], p["unit"], f"[{p['lower']:g}, {p['upper']:g}]", p["initial"], p["true"], p["inferred"],
+             PAPER_INVERSE.get(p["name"]) if s["scale"] == 1 else None] for p in s["parameters"]]
     if yardstick is not None:
         header.append("inferred (MPM-AD)")
         rows = [row + [y["inferred"]] for row, y in zip(rows, yardstick["parameters"])]
@@ -140,7 +153,8 @@ def _inverse(s: dict) -> list[str]:
                      f"; the yardstick through the MPM itself (MPM-AD) {yardstick['seconds_per_iteration']:.3g} s per "
                      f"iteration ({yardstick['seconds']:.4g} s for {yardstick['evaluations']} evaluations, "
                      f"{yardstick['iterations']} iterations, final data loss {yardstick['final_data_loss_m2']:.4g} m²; "
-                     f"{yardstick['message']}).")]
+                     f"{yardstick['message']}).")
+                  + f" The paper's GNS inverse took about {PAPER_INVERSE_SECONDS:g} s per iteration on an NVIDIA Quadro RTX 5000 GPU."]
     lines += ["", "Per iteration (GNS):", ""]
     lines += _table(["iteration", "data loss (m²)", "model loss", "values"],
                     [[h["iteration"], h["data_loss_m2"], h["model_loss"], ", ".join(f"{v:.4g}" for v in h["values"])]
