@@ -252,6 +252,7 @@ def test_sensitivity_can_run_the_step_budget_alone(tmp_path, capfd):
     doc = tmp_path / "r.md"
     assert invoke(["evaluate", "report", "--out", tmp_path / "out", "--doc", doc]).exit_code == 0
     assert "fixed budget 2 steps (the other budget not run)" in doc.read_text()
+    assert "stays level from about 250 on" in doc.read_text()  # the paper's finding beside ours
     bad = invoke(args[:-1] + ["--budgets", "hours", "--no-progress"])
     assert str(bad.exception) == "--budgets 'hours' must name steps, epochs or both, e.g. steps,epochs."
 
