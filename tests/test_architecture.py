@@ -14,11 +14,11 @@ PACKAGE = Path(__file__).resolve().parents[1] / "src" / "runout"
 LAYERS = (
     ("foundation", ("runout", "runout.errors", "runout.defaults", "runout.contract", "runout.npz", "runout.outputs")),
     ("data", ("runout.scene", "runout.checks", "runout.simfiles", "runout.trajectory", "runout.dataset", "runout.metrics")),
-    ("engines", ("runout.mpm", "runout.gns")),
+    ("engines", ("runout.transfer", "runout.mpm", "runout.gns", "runout.neural_mpm")),
     ("views", ("runout.plots", "runout.vtk")),
     ("applications", ("runout.families", "runout.train", "runout.train_settings", "runout.inverse", "runout.evaluate", "runout.compare",
                       "runout.generate", "runout.demo", "runout.validate", "runout.validate_figures", "runout.mpm_run",
-                      "runout.gns_run")),
+                      "runout.gns_run", "runout.neural_mpm.training")),
     ("cli", ("runout.cli", "runout.__main__")),
 )
 

@@ -18,6 +18,7 @@ import torch
 from runout.defaults import FLIP_WAVE
 from runout.mpm.geostatic import GRAVITY
 from runout.mpm.mohr_coulomb import MaterialArrays, mobilised, update_stress
+from runout.transfer import stencil_2d
 
 PAD = 2  # grid nodes beyond each wall; quadratic B-splines reach 1.5 cells
 STENCIL = [(a, b) for a in range(3) for b in range(3)]  # node index offsets of the 3 x 3 stencil
@@ -78,12 +79,8 @@ def stencil(x: torch.Tensor, node_base: torch.Tensor, ny: torch.Tensor, offsets:
     node_base [P] is the first node of the point's scene, ny [P] its nodes per grid column,
     offsets [P, 9] = a * ny + b for the stencil's (a, b). The node-minus-point offset of
     stencil node k is (STENCIL[k] - fx) * dx."""
-    xg = x * (1.0 / dx)
-    base = torch.floor(xg - 0.5)
-    fx = xg - base  # in [0.5, 1.5)
-    wx = torch.stack((0.5 * (1.5 - fx) ** 2, 0.75 - (fx - 1.0) ** 2, 0.5 * (fx - 0.5) ** 2), dim=1)
-    w = (wx[:, :, None, 0] * wx[:, None, :, 1]).reshape(-1, 9)  # [P, 9]
-    cell = base.long() + PAD
+    base, w, fx = stencil_2d(x * (1.0 / dx))  # the quadratic B-spline of runout.transfer; fx in [0.5, 1.5)
+    cell = base + PAD
     ids = (node_base + cell[:, 0] * ny + cell[:, 1])[:, None] + offsets
     return ids, w, fx
 

@@ -1,0 +1,225 @@
+"""The neural MPM: particles to grid, a U-Net predicting the grid velocities of the next m
+frames at once, grid to particles (after NeuralMPM, Rochman-Sharabi, Lewin & Louppe, TMLR
+2025; design only, no code of theirs).
+
+One call, from the points' positions and their velocities over the last `history` frames:
+
+1. particles to grid with the MPM's quadratic B-spline (runout.transfer) at the engine's cell
+   size dx: per node the soil fill and the ground fill (the points' area spacing^2 / dx^2
+   spread over the stencil, ~1 inside a full cell), the soil's mass-weighted mean velocity of
+   each of the last `history` frames (m per frame / velocity_scale), its mass-weighted
+   material features [tan phi, c / 100 kPa], and two static masks: nodes on or outside the
+   domain's walls, and nodes inside the domain;
+2. the U-Net maps these channels to 2 m channels: the grid velocity (m per frame /
+   velocity_scale) of each of the next m frames;
+3. frame by frame, each soil point moves by the grid velocity interpolated at its current
+   position, and is kept inside the domain (rigid walls); kinematic points (type 3, ground
+   and foundations) never move.
+
+The grid's node (i, j) lies at the domain's lower-left corner + (i - pad, j - pad) dx, with
+`pad` nodes outside every wall and the sides rounded up to the U-Net's multiple, so a point
+anywhere in the domain has its whole stencil on the grid. Every operation is a tensor
+operation on the points' positions and material features, so a rollout is differentiable in
+both (the inverse analysis runs through it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+import torch
+from torch import nn
+from torch.utils.checkpoint import checkpoint as recompute_in_backward
+
+from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
+from runout.errors import InputError
+from runout.neural_mpm.unet import UNet
+from runout.transfer import GridTransfer
+
+ENGINE_NAME = "neural-mpm"
+FILL_FLOOR = 0.05  # fill below which a node's mean velocity and material fade to zero (no soil there)
+
+
+@dataclass(frozen=True)
+class NeuralMPMConfig:
+    """Everything that fixes the engine's inputs and outputs; stored in every checkpoint."""
+
+    cell_size: float = 8.0  # m between grid nodes
+    point_spacing: float = 4.0  # m between the training data's points
+    frame_dt: float = FRAME_DT  # s between the frames the engine steps through
+    history: int = 3  # past frame velocities per input
+    frames_per_call: int = 8  # m: frames predicted per U-Net call
+    widths: tuple[int, ...] = (32, 64, 96)  # U-Net channels per level
+    material_width: int = 2  # [tan phi, c / 100 kPa]
+    velocity_scale: float = 0.0  # m per frame: the unit of the velocity channels (0: from the training data)
+    pad: int = 2  # grid nodes outside each wall
+
+    @property
+    def in_channels(self) -> int:
+        return 2 + 2 * self.history + self.material_width + 2
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, table: dict) -> "NeuralMPMConfig":
+        values = dict(table)
+        values["widths"] = tuple(int(w) for w in values.get("widths", cls.widths))
+        return cls(**values)
+
+
+@dataclass
+class Points:
+    """A batch of scenes' points as one flat set: what a call needs besides the history."""
+
+    fixed: torch.Tensor  # [P] bool, kinematic points
+    material: torch.Tensor  # [P, k]
+    scene: torch.Tensor  # [P] long, the point's scene in the batch
+    bounds: torch.Tensor  # [B, 2, 2] m, [[x_lo, x_hi], [y_lo, y_hi]] of each scene
+    lo: torch.Tensor = field(init=False)  # [P, 2] m
+    hi: torch.Tensor = field(init=False)
+
+    def __post_init__(self):
+        self.lo = self.bounds[self.scene, :, 0]
+        self.hi = self.bounds[self.scene, :, 1]
+
+    @property
+    def batch(self) -> int:
+        return self.bounds.shape[0]
+
+
+class NeuralMPM(nn.Module):
+    name = ENGINE_NAME
+
+    def __init__(self, config: NeuralMPMConfig):
+        super().__init__()
+        self.config = config
+        self.net = UNet(config.in_channels, 2 * config.frames_per_call, config.widths)
+
+    # ------------------------------------------------------------------ contract of a learned engine
+
+    @property
+    def point_spacing(self) -> float:
+        return self.config.point_spacing
+
+    @property
+    def device(self) -> torch.device:
+        return self.net.out.weight.device
+
+    @property
+    def material_width(self) -> int:
+        return self.config.material_width
+
+    # ------------------------------------------------------------------ the grid
+
+    def grid(self, bounds: torch.Tensor) -> tuple[torch.Tensor, tuple[int, int]]:
+        """Origins [B, 2] (m) and the common (NX, NY) of the grids of scenes with bounds [B, 2, 2]."""
+        dx, pad, mult = self.config.cell_size, self.config.pad, self.net.multiple
+        size = (bounds[:, :, 1] - bounds[:, :, 0]).amax(0)
+        cells = [math.ceil(float(s) / dx - 1e-9) for s in size]
+        shape = tuple(mult * math.ceil((c + 1 + 2 * pad) / mult) for c in cells)
+        return bounds[:, :, 0] - pad * dx, shape
+
+    def static_channels(self, bounds: torch.Tensor, origin: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+        """[B, 2, NX, NY]: nodes on or outside a wall (1), nodes strictly inside the domain (1)."""
+        dx = self.config.cell_size
+        i = torch.arange(shape[0], dtype=bounds.dtype, device=bounds.device)
+        j = torch.arange(shape[1], dtype=bounds.dtype, device=bounds.device)
+        x = origin[:, 0, None, None] + i[None, :, None] * dx  # [B, NX, 1]
+        y = origin[:, 1, None, None] + j[None, None, :] * dx  # [B, 1, NY]
+        tol = 1e-6 * dx
+        inside = ((x > bounds[:, 0, 0, None, None] + tol) & (x < bounds[:, 0, 1, None, None] - tol)
+                  & (y > bounds[:, 1, 0, None, None] + tol) & (y < bounds[:, 1, 1, None, None] - tol))
+        return torch.stack((~inside, inside), 1).to(bounds.dtype)
+
+    # ------------------------------------------------------------------ one call
+
+    def call(self, x: torch.Tensor, velocities: torch.Tensor, pts: Points, static: torch.Tensor,
+             origin: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+        """Positions [m, P, 2] (m) of the next m frames from positions x [P, 2] (m) and the last
+        `history` frame velocities [history, P, 2] (m per frame, oldest first)."""
+        cfg = self.config
+        dx = cfg.cell_size
+        grid_shape = (pts.batch, *shape)
+        point_origin = origin[pts.scene]
+        transfer = _transfer(x, pts, point_origin, dx, grid_shape)
+        area = (cfg.point_spacing / dx) ** 2
+        soil = (~pts.fixed).to(x.dtype)[:, None] * area
+        ground = pts.fixed.to(x.dtype)[:, None] * area
+        vel = velocities.permute(1, 0, 2).reshape(x.shape[0], -1) / cfg.velocity_scale
+        g = transfer.to_grid(torch.cat([soil, ground, soil * vel, soil * pts.material], 1))
+        fill = g[:, :1]
+        fade = 1.0 / torch.clamp(fill, min=FILL_FLOOR)
+        inputs = torch.cat([fill, g[:, 1:2], g[:, 2:] * fade, static], 1)
+        grid_velocity = self.net(inputs) * cfg.velocity_scale  # [B, 2 m, NX, NY] m per frame
+        moving = (~pts.fixed)[:, None]
+        frames = []
+        for k in range(cfg.frames_per_call):
+            here = transfer if k == 0 else _transfer(x, pts, point_origin, dx, grid_shape)
+            v = here.to_points(grid_velocity[:, 2 * k:2 * k + 2])
+            x = torch.where(moving, torch.minimum(torch.maximum(x + v, pts.lo), pts.hi), x)
+            frames.append(x)
+        return torch.stack(frames)
+
+    # ------------------------------------------------------------------ rollouts
+
+    def rollout(self, positions: torch.Tensor, particle_type: torch.Tensor, material: torch.Tensor,
+                bounds, n_frames: int, start_velocity: torch.Tensor | None = None, scene: torch.Tensor | None = None,
+                checkpoint: bool = False) -> torch.Tensor:
+        """Positions [n_frames, P, 2] (m), frame 0 = positions [P, 2] (m), one frame every
+        frame_dt. start_velocity [P, 2] m/s at frame 0 (None: at rest, how every scene starts);
+        material [P, k] (may require grad); bounds [2, 2] m, or [B, 2, 2] with scene [P] the
+        point's scene when several scenes run together. checkpoint: recompute each call in the
+        backward pass (memory of one call instead of all)."""
+        cfg = self.config
+        device = self.device
+        x = positions.to(device)
+        bounds = torch.as_tensor(bounds, dtype=x.dtype, device=device)
+        if bounds.dim() == 2:
+            bounds = bounds[None]
+        scene = torch.zeros(x.shape[0], dtype=torch.long, device=device) if scene is None else scene.to(device)
+        pts = Points(particle_type.to(device) == PARTICLE_TYPE_KINEMATIC, material.to(device, x.dtype), scene, bounds)
+        step = (torch.zeros_like(x) if start_velocity is None
+                else torch.as_tensor(start_velocity, dtype=x.dtype, device=device) * cfg.frame_dt)
+        velocities = step[None].expand(cfg.history, -1, -1)
+        frames = self.advance(x, velocities, pts, math.ceil((n_frames - 1) / cfg.frames_per_call), checkpoint)
+        return torch.cat([x[None], frames])[:n_frames]
+
+    def advance(self, x: torch.Tensor, velocities: torch.Tensor, pts: Points, calls: int,
+                checkpoint: bool = False) -> torch.Tensor:
+        """Positions [calls m, P, 2] of the frames after x [P, 2], chaining `calls` calls."""
+        origin, shape = self.grid(pts.bounds)
+        static = self.static_channels(pts.bounds, origin, shape)
+        h = self.config.history
+        out = []
+        for _ in range(calls):
+            if checkpoint and torch.is_grad_enabled():
+                frames = recompute_in_backward(self.call, x, velocities, pts, static, origin, shape, use_reentrant=False)
+            else:
+                frames = self.call(x, velocities, pts, static, origin, shape)
+            chain = torch.cat([x[None], frames])
+            velocities = torch.cat([velocities, chain[1:] - chain[:-1]])[-h:]
+            x = frames[-1]
+            out.append(frames)
+        return torch.cat(out)
+
+
+def _transfer(x, pts: Points, point_origin, dx, grid_shape) -> GridTransfer:
+    return GridTransfer(x - point_origin, pts.scene, dx, grid_shape)
+
+
+def check_frame_dt(engine: NeuralMPM, frame_dt: float, source) -> None:
+    """InputError unless a trajectory's frames are the engine's frame_dt apart."""
+    if not math.isclose(frame_dt, engine.config.frame_dt, rel_tol=1e-6):
+        raise InputError(f"{source}: frames are {frame_dt:g} s apart but the neural MPM steps {engine.config.frame_dt:g} s; "
+                         "give a trajectory at the engine's frame spacing.")
+
+
+def start_state(initial: np.ndarray, velocity: np.ndarray | None) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """Tensors of a scene's frame 0 (m) and its start velocity (m/s; None when at rest)."""
+    x = torch.as_tensor(np.asarray(initial, dtype=np.float32))
+    if velocity is None or not np.any(velocity):
+        return x, None
+    return x, torch.as_tensor(np.asarray(velocity, dtype=np.float32))

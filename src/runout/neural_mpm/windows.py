@@ -1,0 +1,99 @@
+"""Training windows for the neural MPM, drawn from a dataset split held in memory.
+
+A window of simulation s at frame t0 is the input (positions at t0, the velocities of frames
+t0 - history + 1 ... t0, each x_t - x_(t-1) in m per frame, zero at and before frame 0: the
+scene at rest) and the targets (positions of frames t0 + 1 ... t0 + span). A share of the
+windows start at frame 0, where every scene starts when a user runs it; a share is mirrored
+left-right (x -> x_lo + x_hi - x), a true sample of the physics since the MPM is mirror-exact
+(tests/test_mirror.py) while the training slopes all face one way (docs/datasets.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from runout.defaults import PARTICLE_TYPE_KINEMATIC
+from runout.errors import InputError
+from runout.neural_mpm.engine import Points
+from runout.simfiles import read_metadata, read_simulations
+
+
+@dataclass
+class Window:
+    """A batch of windows as one flat set of points."""
+
+    x: torch.Tensor  # [P, 2] m at the window's start
+    velocities: torch.Tensor  # [history, P, 2] m per frame, oldest first
+    targets: torch.Tensor  # [span, P, 2] m
+    points: Points
+
+
+class WindowSampler:
+    """Simulations with every frame in memory (float32 on the CPU): positions [T, N, 2] m,
+    fixed [N] (kinematic points), material [N, k] per simulation, bounds [2, 2] m shared."""
+
+    def __init__(self, positions: list[np.ndarray], fixed: list[np.ndarray], material: list[np.ndarray],
+                 bounds, history: int):
+        self.positions = [torch.from_numpy(np.ascontiguousarray(p, dtype=np.float32)) for p in positions]
+        self.fixed = [torch.from_numpy(np.asarray(f, dtype=bool)) for f in fixed]
+        self.material = [torch.from_numpy(np.asarray(m, dtype=np.float32)) for m in material]
+        self.bounds = torch.tensor(np.asarray(bounds, dtype=np.float32))
+        self.history = history
+
+    @classmethod
+    def from_split(cls, data: str | Path, split: str, history: int, material_width: int) -> "WindowSampler":
+        """The simulations of DATA/SPLIT.npz, with DATA/metadata.json's bounds."""
+        data = Path(data)
+        meta = read_metadata(data)
+        sims = read_simulations(data / f"{split}.npz")
+        widths = {0 if m is None else m.shape[1] for _, _, m in sims}
+        if widths != {material_width}:
+            raise InputError(f"{data / f'{split}.npz'}: holds {sorted(widths)} material features per point; "
+                             f"the engine reads {material_width} ([tan phi, c / 100 kPa]).")
+        return cls([p for p, _, _ in sims], [np.asarray(t) == PARTICLE_TYPE_KINEMATIC for _, t, _ in sims],
+                   [m for _, _, m in sims], meta["bounds"], history)
+
+    def __len__(self) -> int:
+        return len(self.positions)
+
+    def draw(self, batch: int, span: int, rest_share: float, mirror_share: float, generator: torch.Generator) -> Window:
+        """`batch` windows of `span` target frames, drawn with `generator`."""
+        sims = torch.randint(len(self), (batch,), generator=generator).tolist()
+        rest = (torch.rand(batch, generator=generator) < rest_share).tolist()
+        mirror = (torch.rand(batch, generator=generator) < mirror_share).tolist()
+        starts = torch.rand(batch, generator=generator).tolist()
+        xs, vels, targets, fixed, material, scene = [], [], [], [], [], []
+        for b, (s, r, flip, u) in enumerate(zip(sims, rest, mirror, starts)):
+            pos = self.positions[s]
+            last = pos.shape[0] - 1 - span
+            if last < 0:
+                raise InputError(f"simulation {s} has {pos.shape[0]} frames; a window needs more than {span}.")
+            t0 = 0 if r else int(u * (last + 1))
+            frames = pos[max(t0 - self.history, 0):t0 + span + 1]
+            if flip:
+                frames = frames.clone()
+                frames[..., 0] = self.bounds[0, 0] + self.bounds[0, 1] - frames[..., 0]
+            lead = min(t0, self.history)  # frames before t0 in `frames`
+            steps = frames[1:lead + 1] - frames[:lead]
+            pad = frames.new_zeros(self.history - lead, *frames.shape[1:])
+            xs.append(frames[lead])
+            vels.append(torch.cat([pad, steps]))
+            targets.append(frames[lead + 1:])
+            fixed.append(self.fixed[s])
+            material.append(self.material[s])
+            scene.append(torch.full((pos.shape[1],), b, dtype=torch.long))
+        points = Points(torch.cat(fixed), torch.cat(material), torch.cat(scene), self.bounds[None].expand(batch, -1, -1))
+        return Window(torch.cat(xs), torch.cat(vels, 1), torch.cat(targets, 1), points)
+
+    def velocity_scale(self) -> float:
+        """m per frame: the standard deviation of the soil's frame velocities over the data."""
+        total, count = 0.0, 0
+        for pos, fixed in zip(self.positions, self.fixed):
+            v = pos[1:, ~fixed] - pos[:-1, ~fixed]
+            total += float((v.double() ** 2).sum())
+            count += v.numel()
+        return (total / max(count, 1)) ** 0.5

@@ -1,0 +1,146 @@
+"""The neural MPM: its transfers are the MPM's, it learns to move from rest, its gradient is
+right, and a training run resumes exactly."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+import torch
+
+from runout.defaults import PARTICLE_TYPE_KINEMATIC
+from runout.evaluate.heldout import scene_scores, standing_still
+from runout.mpm import simulate
+from runout.neural_mpm.engine import NeuralMPM, NeuralMPMConfig
+from runout.neural_mpm.training import BEST, CHECKPOINT, TrainSettings, evaluate, rollout_like, train
+from runout.scene import scene_from_dict
+from runout.simfiles import statistics, write_metadata, write_simulations
+from runout.transfer import GridTransfer, stencil_2d
+
+pytestmark = pytest.mark.usefixtures("one_thread")
+
+# a frictional column (phi 20 deg, c 2 kPa) against the left wall on fixed ground, 8 m cells
+# (4 m point spacing), 64 frames: it collapses to the right
+COLUMN = {
+    "domain": {"width": 96.0, "height": 48.0, "cell_size": 8.0},
+    "time": {"frames": 64},
+    "materials": {"soil": {"friction_angle": 20.0, "cohesion": 2.0}, "ground": {"model": "elastic"}},
+    "regions": [
+        {"material": "ground", "polygon": [[0, 0], [96, 0], [96, 4], [0, 4]], "fixed": True},
+        {"material": "soil", "polygon": [[0, 4], [24, 4], [24, 40], [0, 40]]},
+    ],
+}
+TINY = NeuralMPMConfig(cell_size=8.0, point_spacing=4.0, history=2, frames_per_call=4, widths=(8, 16),
+                       velocity_scale=0.1)
+
+
+@pytest.fixture(scope="module")
+def column():
+    return simulate([scene_from_dict(COLUMN, "column")], progress=False)[0]
+
+
+@pytest.fixture(scope="module")
+def dataset(column, tmp_path_factory):
+    """A dataset of the one column run as its train and valid splits."""
+    folder = tmp_path_factory.mktemp("column_data")
+    sim = (column.positions, column.particle_type, column.material_features(2))
+    for split in ("train", "valid"):
+        write_simulations(folder / f"{split}.npz", [sim])
+    meta = statistics([sim], radius=9.2, bounds=column.bounds.tolist(), dt=column.frame_dt)
+    write_metadata(folder / "metadata.json", {**meta, "sequence_length": column.n_frames,
+                                              "material_features": ["tan_phi", "c_over_100kPa"]})
+    return folder
+
+
+def test_transfers_conserve_mass_and_reproduce_linear_fields():
+    g = torch.Generator().manual_seed(1)
+    x = torch.rand(500, 2, generator=g, dtype=torch.float64) * torch.tensor([40.0, 24.0]) + 12.0
+    scene = (torch.rand(500, generator=g) < 0.5).long()
+    t = GridTransfer(x, scene, 8.0, (2, 10, 8))
+    mass = t.to_grid(torch.ones(500, 1, dtype=torch.float64))
+    assert mass[0].sum().item() == pytest.approx(float((scene == 0).sum()), abs=1e-9)
+    assert mass[1].sum().item() == pytest.approx(float((scene == 1).sum()), abs=1e-9)
+    i = torch.arange(10, dtype=torch.float64)[:, None] * 8.0
+    j = torch.arange(8, dtype=torch.float64)[None, :] * 8.0
+    field = (0.3 * i - 1.7 * j + 5.0).expand(2, 1, 10, 8)
+    assert torch.allclose(t.to_points(field)[:, 0], 0.3 * x[:, 0] - 1.7 * x[:, 1] + 5.0, atol=1e-10)
+
+
+def test_the_mpm_and_the_neural_mpm_share_one_stencil():
+    from runout.mpm.solver import stencil
+
+    x = torch.rand(50, 2, dtype=torch.float64) * 40.0 + 10.0
+    ny = torch.full((50,), 12)
+    offsets = torch.tensor([a * 12 + b for a in range(3) for b in range(3)]).expand(50, 9)
+    _, w_mpm, fx_mpm = stencil(x, torch.zeros(50, dtype=torch.long), ny, offsets, 8.0)
+    _, w, fx = stencil_2d(x / 8.0)
+    assert torch.equal(w_mpm, w) and torch.equal(fx_mpm, fx)
+
+
+def test_an_untrained_engine_stands_still(column):
+    engine = NeuralMPM(TINY)
+    predicted = rollout_like(engine, column)
+    np.testing.assert_array_equal(predicted.positions, np.repeat(column.positions[:1], column.n_frames, 0))
+
+
+def test_a_tiny_engine_trained_on_one_run_moves_from_rest_and_beats_standing_still(dataset, column, tmp_path):
+    settings = TrainSettings(data=str(dataset), out=str(tmp_path / "run"), steps=300, batch_size=4, calls=2,
+                             lr=3e-3, lr_final=3e-4, rest_share=0.3, mirror_share=0.0, valid_every=300,
+                             valid_count=1, progress=False)
+    engine = train(settings, TINY)
+    still = scene_scores(standing_still(column), column, 4.0)["position_error_m"]
+    result = evaluate(engine, [column])
+    travel = float(np.abs(column.positions[-1] - column.positions[0]).max())
+    assert travel > 8.0, "the column must collapse for this test to mean anything"
+    assert result["displacement_m"] > 0.5 * result["displacement_mpm_m"]  # it moves from rest
+    assert result["position_error_m"] < 0.5 * still
+    assert (tmp_path / "run" / CHECKPOINT).is_file() and (tmp_path / "run" / BEST).is_file()
+
+
+def test_the_gradient_through_a_rollout_matches_central_differences(column):
+    torch.manual_seed(0)
+    engine = NeuralMPM(TINY).double()
+    for p in engine.parameters():  # a random engine that moves the points
+        p.data.normal_(0.0, 0.3)
+    x0 = torch.from_numpy(column.positions[0].astype(np.float64))
+    ptype = torch.from_numpy(column.particle_type)
+    base = torch.from_numpy(column.material_features(2).astype(np.float64))
+
+    def loss(tan_phi: torch.Tensor) -> torch.Tensor:
+        material = torch.cat([tan_phi.expand(base.shape[0], 1), base[:, 1:]], 1)
+        frames = engine.rollout(x0, ptype, material, column.bounds, 9)
+        return frames[-1, :, 0].mean()
+
+    phi = torch.tensor([0.36], dtype=torch.float64, requires_grad=True)
+    loss(phi).backward()
+    h = 1e-5
+    with torch.no_grad():
+        numeric = (loss(phi.detach() + h) - loss(phi.detach() - h)) / (2 * h)
+    assert abs(numeric.item()) > 1e-4, "the loss must depend on the friction for the check to mean anything"
+    assert phi.grad.item() == pytest.approx(numeric.item(), rel=1e-4)
+
+
+def test_a_resumed_run_continues_exactly(dataset, tmp_path):
+    common = dict(data=str(dataset), steps=6, batch_size=2, valid_every=0, save_every=3, progress=False)
+    straight = train(TrainSettings(out=str(tmp_path / "a"), **common), TINY)
+    train(TrainSettings(out=str(tmp_path / "b"), max_cpu_hours=1e-9, **common), TINY)  # out of time at once
+    state = torch.load(tmp_path / "b" / CHECKPOINT, weights_only=True)
+    assert state["step"] == 1
+    resumed = train(TrainSettings(out=str(tmp_path / "b"), **common), TINY, resume=True)
+    for (name, a), (_, b) in zip(straight.state_dict().items(), resumed.state_dict().items()):
+        assert torch.equal(a, b), name
+
+
+def test_kinematic_points_never_move(column):
+    engine = NeuralMPM(TINY)
+    for p in engine.parameters():
+        p.data.normal_(0.0, 0.3)
+    with torch.no_grad():
+        frames = engine.rollout(torch.from_numpy(column.positions[0]), torch.from_numpy(column.particle_type),
+                                torch.from_numpy(column.material_features(2)), column.bounds, 17)
+    fixed = column.particle_type == PARTICLE_TYPE_KINEMATIC
+    assert torch.equal(frames[:, fixed], frames[:1, fixed].expand(17, -1, -1))
+    lo, hi = torch.tensor(column.bounds[:, 0]), torch.tensor(column.bounds[:, 1])
+    assert bool(((frames >= lo.float()) & (frames <= hi.float())).all())
+    assert float((frames[-1, ~fixed] - frames[0, ~fixed]).abs().max()) > 0.0
