@@ -30,7 +30,8 @@ import numpy as np
 import torch
 
 from runout.gns.checkpoint import load_simulator
-from runout.gns.rollout import at_model_spacing, rollout_trajectories, rollout_trajectory, scene_at_rest
+from runout.gns.rollout import rollout_trajectories, rollout_trajectory
+from runout.learned.scenes import at_model_spacing, scene_at_rest
 from runout.mpm import simulate
 from runout.scene import load_scene
 

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from runout.gns.checkpoint import load_simulator
+from runout.gns.engine import GnsEngine
 from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.inverse import load_inverse_spec
@@ -72,7 +73,7 @@ def main() -> None:
         evaluate, model_name = MpmFiniteDifference(spec, observation, device=args.device), "MPM, 7 scenes in one batch"
     else:
         simulator, model_name = simulator_for(args.model, args.device)
-        evaluate = inverse_problem(spec, observation, simulator, checkpoint=not args.no_checkpoint).evaluate
+        evaluate = inverse_problem(spec, observation, GnsEngine(simulator), checkpoint=not args.no_checkpoint).evaluate
     evaluate(values)  # warm-up
     runs = [evaluate(values) for _ in range(args.repeats)]
     report(runs, len(observation.initial), steps, model_name, args, spec.names)

@@ -44,6 +44,7 @@ def main() -> None:
     from runout.dataset import split_trajectories
     from runout.evaluate.heldout import rollout_all, score, standing_still
     from runout.gns.checkpoint import load_last_step, load_simulator, read_checkpoint
+    from runout.gns.engine import GnsEngine
 
     torch.set_num_threads(args.threads)
     first, end = args.scenes
@@ -61,7 +62,7 @@ def main() -> None:
                 rows.append({"checkpoint": "standing still", "step": 0, "weights": "",
                              **score([standing_still(t) for t in truths], truths, simulator.point_spacing)})
             t0 = time.perf_counter()
-            predicted = rollout_all(simulator, truths)
+            predicted = rollout_all(GnsEngine(simulator), truths)
             rows.append({"checkpoint": str(path), "step": step, "weights": kind,
                          **score(predicted, truths, simulator.point_spacing), "rollout_s": time.perf_counter() - t0})
             r = rows[-1]

@@ -183,6 +183,7 @@ def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int
     from runout.dataset import split_trajectories
     from runout.evaluate.heldout import rollout_all, score, standing_still
     from runout.gns.checkpoint import load_last_step, load_simulator, read_checkpoint
+    from runout.gns.engine import GnsEngine
 
     torch.set_num_threads(threads or os.cpu_count() or 1)
     truths = list(split_trajectories(data, "valid", n_valid))
@@ -200,7 +201,7 @@ def evaluate(names: list[str], data: Path, out: Path, n_valid: int, threads: int
         log = [json.loads(ln) for ln in (out / name / "log.jsonl").read_text().splitlines() if ln]
         wall = max((r.get("wall_s", 0.0) for r in log), default=0.0)
         t0 = time.perf_counter()
-        predicted = rollout_all(simulator, truths)
+        predicted = rollout_all(GnsEngine(simulator), truths)
         rows.append({
             "pilot": name + (" (last step)" if last_step else ""), "options": " ".join(PRESETS[name]), "steps": step, "train_wall_s": wall,
             "s_per_step": wall / max(step, 1),

@@ -1,4 +1,5 @@
-"""Accuracy of a GNS checkpoint, measured for its model card (models/README.md).
+"""Accuracy of a learned engine's checkpoint (GNS or neural MPM: the file says which),
+measured for its model card (models/README.md).
 
     .venv/bin/python scripts/evaluate_model.py models/slope.pt --data DATA --out runs/eval_slope
 
@@ -29,12 +30,12 @@ import torch
 REPO = Path(__file__).resolve().parents[1]
 
 
-def heldout(simulator, data: Path, split: str = "test", limit: int | None = None, mirrored: bool = False) -> dict:
+def heldout(engine, data: Path, split: str = "test", limit: int | None = None, mirrored: bool = False) -> dict:
     """The first `limit` scenes of the split rolled out from rest, scored beside standing
     still (runout.evaluate.heldout); mirrored: the scenes reflected left-right."""
     from runout.evaluate.heldout import evaluate_heldout
 
-    return evaluate_heldout(simulator, data, split, limit, mirrored=mirrored)
+    return evaluate_heldout(engine, data, split, limit, mirrored=mirrored)
 
 
 def curves(log: Path, path: Path) -> dict:
@@ -73,18 +74,18 @@ def curves(log: Path, path: Path) -> dict:
             "validation": [{"step": s, "runout_error": e, "position_mse_m2": m} for s, e, m in valid]}
 
 
-def column(simulator, scene_path: Path, frames: int, out: Path) -> dict:
-    from runout.gns.rollout import at_model_spacing, rollout_trajectory, scene_at_rest
+def column(engine, scene_path: Path, frames: int, out: Path) -> dict:
+    from runout.learned.scenes import at_model_spacing, scene_at_rest
     from runout.metrics import normalised_extent
     from runout.mpm import simulate
     from runout.scene import load_scene
 
-    scene = at_model_spacing(load_scene(scene_path), simulator)
+    scene = at_model_spacing(load_scene(scene_path), engine)
     scene = replace(scene, time=replace(scene.time, frames=frames))
     t0 = time.perf_counter()
     truth = simulate([scene], device="cpu", progress=False)[0]
     mpm_s = time.perf_counter() - t0
-    predicted = rollout_trajectory(simulator, scene_at_rest(scene), frames, stop_speed=None)
+    predicted = engine.rollout_trajectory(scene_at_rest(scene), frames, stop_speed=None)
     mpm_ln, gns_ln = normalised_extent(truth), normalised_extent(predicted)
     _draw(truth, predicted, out / "column.png")
     return {"scene": scene_path.name, "cell_size_m": scene.domain.cell_size, "points": truth.n_points, "frames": frames,
@@ -113,19 +114,19 @@ def main() -> None:
                    "(the families' slopes all fail to the right; a model that learned the physics scores both alike).")
     p.add_argument("--threads", type=int, default=1)
     args = p.parse_args()
-    from runout.gns.checkpoint import load_simulator
+    from runout.learned.load import load_engine
 
     torch.set_num_threads(args.threads)
     args.out.mkdir(parents=True, exist_ok=True)
-    simulator = load_simulator(args.model)
+    engine = load_engine(args.model)
     metrics = {"model": str(args.model)}
     keys = [f"{args.split}_split"] + ([f"{args.split}_split_mirrored"] if args.mirrored else [])
     for key in keys:
         t0 = time.perf_counter()
-        metrics[key] = heldout(simulator, args.data, args.split, args.limit, mirrored=key.endswith("mirrored"))
+        metrics[key] = heldout(engine, args.data, args.split, args.limit, mirrored=key.endswith("mirrored"))
         metrics[key]["rollout_wall_s"] = round(time.perf_counter() - t0, 1)
     if not args.no_column:
-        metrics["column"] = column(simulator, args.column, args.frames, args.out)
+        metrics["column"] = column(engine, args.column, args.frames, args.out)
     if args.log is not None:
         metrics["curves"] = curves(args.log, args.out / "curves.png")
     (args.out / "metrics.json").write_text(json.dumps(metrics, indent=1))

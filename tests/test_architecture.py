@@ -14,11 +14,11 @@ PACKAGE = Path(__file__).resolve().parents[1] / "src" / "runout"
 LAYERS = (
     ("foundation", ("runout", "runout.errors", "runout.defaults", "runout.contract", "runout.npz", "runout.outputs")),
     ("data", ("runout.scene", "runout.checks", "runout.simfiles", "runout.trajectory", "runout.dataset", "runout.metrics")),
-    ("engines", ("runout.transfer", "runout.mpm", "runout.gns", "runout.neural_mpm")),
+    ("engines", ("runout.transfer", "runout.mpm", "runout.gns", "runout.neural_mpm", "runout.learned")),
     ("views", ("runout.plots", "runout.vtk")),
     ("applications", ("runout.families", "runout.train", "runout.train_settings", "runout.inverse", "runout.evaluate", "runout.compare",
                       "runout.generate", "runout.demo", "runout.validate", "runout.validate_figures", "runout.mpm_run",
-                      "runout.gns_run", "runout.neural_mpm.training")),
+                      "runout.rollout_run", "runout.neural_mpm.training")),
     ("cli", ("runout.cli", "runout.__main__")),
 )
 
@@ -101,3 +101,22 @@ def test_the_command_line_starts_without_torch_or_matplotlib():
     code = ("import runout.cli, sys; heavy = [m for m in ('torch', 'matplotlib', 'scipy', 'warp') if m in sys.modules]; "
             "assert not heavy, heavy")
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+ENGINE_PACKAGES = ("runout.gns", "runout.neural_mpm")
+
+
+def test_commands_reach_the_learned_engines_only_through_the_contract():
+    """A command module takes any learned engine through runout.learned (load_engine), never
+    one engine's package; an engine's package never imports another engine's."""
+    leaks = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        module = module_name(path)
+        own = next((p for p in ENGINE_PACKAGES if module == p or module.startswith(p + ".")), None)
+        for imported in imported_modules(path):
+            engine = next((p for p in ENGINE_PACKAGES if imported == p or imported.startswith(p + ".")), None)
+            if engine is None:
+                continue
+            if module.startswith("runout.cli") or (own is not None and engine != own):
+                leaks.append(f"{module} imports {imported}")
+    assert not leaks, "\n".join(leaks)

@@ -14,7 +14,7 @@ import torch
 
 from runout.compare import comparison_metrics
 from runout.gns.checkpoint import load_simulator
-from runout.gns.training_range import point_spacing
+from runout.learned.training_range import point_spacing
 from runout.metrics import deposit_iou, occupied_cells
 from runout.scene import Material, save_scene, scene_from_dict
 from runout.trajectory import Trajectory, load_trajectory
@@ -59,24 +59,25 @@ def _stdout(argv) -> str:
     return result.output
 
 
-def test_compare_writes_metrics_pictures_and_the_gns_trajectory(compared):
+def test_compare_writes_metrics_pictures_and_the_engines_trajectory(compared):
     folder, printed = compared
     out = folder / "out"
     for name in ("metrics.json", "final.png", "animation.gif"):
         assert (out / name).stat().st_size > 1000, name
-    assert load_trajectory(out / "gns").n_frames == FRAMES
+    assert load_trajectory(out / "predicted").n_frames == FRAMES
     assert f"wrote {out / 'metrics.json'}" in printed and "deposit IoU" in printed
 
 
 def test_compare_metrics_are_present_and_finite(compared):
     m = json.loads((compared[0] / "out" / "metrics.json").read_text())
     for side in ("left", "right", "farthest"):
-        assert set(m[f"runout_{side}_m"]) == {"mpm", "gns", "error_m", "ape_percent"}
+        assert set(m[f"runout_{side}_m"]) == {"truth", "predicted", "error_m", "ape_percent"}
         assert all(math.isfinite(v) for v in m[f"runout_{side}_m"].values())
     assert 0.0 <= m["deposit_iou"] <= 1.0
     assert math.isfinite(m["position_mse_mean_m2"]) and math.isfinite(m["position_mse_final_m2"])
     wall = m["wall_s"]
-    assert wall["mpm"] > 0 and wall["gns"] > 0 and wall["mpm_over_gns"] == pytest.approx(wall["mpm"] / wall["gns"])
+    assert m["engine"] == "gns"
+    assert wall["mpm"] > 0 and wall["engine"] > 0 and wall["mpm_over_engine"] == pytest.approx(wall["mpm"] / wall["engine"])
     assert m["frames"] == FRAMES and m["centre_m"] == pytest.approx(60.0)
 
 
@@ -87,7 +88,7 @@ def test_compare_fills_the_scene_at_the_models_spacing_for_both_engines(compared
     assert m["cell_size_m"] == 2 * SPACING and m["point_spacing_m"] == SPACING
     assert "filling" in printed and (f"at the model's {SPACING:g} m spacing ({2 * SPACING:g} m cells) instead of the "
                                      "scene's 4 m cells") in printed
-    assert point_spacing(load_trajectory(folder / "out" / "gns")) == pytest.approx(SPACING)
+    assert point_spacing(load_trajectory(folder / "out" / "predicted")) == pytest.approx(SPACING)
     assert point_spacing(load_trajectory(m["mpm_trajectory"])) == pytest.approx(SPACING)
 
 
@@ -112,7 +113,7 @@ def test_a_deposit_overlaps_itself_completely():
     assert deposit_iou(traj, traj, 10.0) == 1.0
     m = comparison_metrics(traj, traj, 10.0)
     assert m["deposit_iou"] == 1.0 and m["position_mse_final_m2"] == 0.0
-    assert m["runout_left_m"] == {"mpm": 20.0, "gns": 20.0, "error_m": 0.0, "ape_percent": 0.0}
+    assert m["runout_left_m"] == {"truth": 20.0, "predicted": 20.0, "error_m": 0.0, "ape_percent": 0.0}
 
 
 def test_deposit_overlap_counts_cells_of_the_grid():

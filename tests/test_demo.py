@@ -85,7 +85,7 @@ def test_quick_demo_writes_the_forward_and_inverse_pictures(tmp_path):
         assert str(out / name) in result.output or name.endswith(".csv")
     assert "1080 points at 10 m cells" in result.output  # the slope filled at the model's spacing
     metrics = json.loads((out / "forward" / "metrics.json").read_text())  # the GNS beside the MPM of the same points
-    assert metrics["runout_left_m"]["mpm"] > 0 and f"left front {metrics['runout_left_m']['gns']:.1f} m" in result.output
+    assert metrics["runout_left_m"]["truth"] > 0 and f"left front {metrics['runout_left_m']['predicted']:.1f} m" in result.output
     assert len(list((out / "forward").glob("mpm_*/trajectory.npz"))) == 1
     assert "yardstick" in result.output and "(GNS: " in result.output  # the MPM-AD answer beside the GNS one
     assert len(list((out / "inverse").glob("mpm_*/trajectory.npz"))) == 1

@@ -131,7 +131,7 @@ def test_a_study_runs_the_mpm_and_the_gns_at_the_models_spacing(tmp_path):
     from runout.evaluate import EngineRun, run_columns
     from runout.evaluate.columns import ColumnGrid
     from runout.gns.checkpoint import load_simulator
-    from runout.gns.training_range import point_spacing
+    from runout.learned.training_range import point_spacing
     from runout.scene import load_scene
     from runout.trajectory import load_trajectory
 

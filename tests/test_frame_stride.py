@@ -11,7 +11,9 @@ import torch
 from runout.compare import comparison_metrics
 from runout.errors import InputError
 from runout.gns.checkpoint import load_simulator, read_checkpoint, save_checkpoint
-from runout.gns.rollout import rollout_trajectory, scene_at_rest, start_window
+from runout.gns.engine import GnsEngine
+from runout.gns.rollout import rollout_trajectory, start_window
+from runout.learned.scenes import scene_at_rest
 from runout.gns.samples import Simulations
 from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
@@ -270,10 +272,10 @@ def test_an_inverse_at_stride_two_observes_only_frames_the_model_predicts(tmp_pa
     observation = load_observation(spec, stride=2)
     assert observation.frames == (14,) and observation.model_frames == (7,)  # "final": the last even frame
     assert observation.model_steps == 7  # from rest at frame 0, step j reaches frame 2j
-    problem = inverse_problem(spec, observation, simulator)
+    problem = inverse_problem(spec, observation, GnsEngine(simulator))
     assert problem.forward(problem.features(torch.tensor([25.0], dtype=torch.float64))).shape == (1, observation.positions.shape[1], 2)
     with pytest.raises(InputError, match="frame stride 1"):
-        inverse_problem(spec, load_observation(spec), simulator)
+        inverse_problem(spec, load_observation(spec), GnsEngine(simulator))
 
 
 def test_the_cli_trains_at_stride_two_and_rolls_out_against_the_full_rate_truth(tmp_path):

@@ -78,7 +78,7 @@ def spaced_model(path, radius=12.0, spacing=4.0):
 
 def test_a_scene_is_filled_at_the_spacing_the_checkpoint_records_not_at_its_radius(tmp_path):
     from runout.gns.checkpoint import load_simulator
-    from runout.gns.rollout import at_model_spacing
+    from runout.learned.scenes import at_model_spacing
     from runout.scene import EXAMPLES, load_scene
 
     simulator = load_simulator(spaced_model(tmp_path / "m.pt"))
@@ -92,7 +92,7 @@ def test_a_scene_is_filled_at_the_spacing_the_checkpoint_records_not_at_its_radi
 
 
 def test_rollout_of_a_scene_file_fills_it_at_the_models_spacing(tmp_path):
-    from runout.gns.training_range import point_spacing
+    from runout.learned.training_range import point_spacing
     from runout.scene import EXAMPLES, fill_points, load_scene
 
     model = spaced_model(tmp_path / "m.pt")

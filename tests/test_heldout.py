@@ -33,6 +33,7 @@ def test_fronts_that_barely_move_are_not_scored():
 def test_the_scores_are_also_averaged_by_family_and_by_start(tmp_path):
     from runout.dataset import read_metadata
     from runout.evaluate.heldout import evaluate_heldout
+    from runout.gns.engine import GnsEngine
     from runout.simfiles import read_simulations, write_metadata, write_simulations
     from runout.train import TrainConfig, train
     from test_gns_train import TINY
@@ -49,7 +50,7 @@ def test_the_scores_are_also_averaged_by_family_and_by_start(tmp_path):
     write_metadata(data / "metadata.json", meta)
     model = train(TrainConfig(data=data, out=tmp_path / "run", steps=1, network=TINY, valid_every=0, checkpoint_layers=False))
 
-    result = evaluate_heldout(model, data, "valid", count=3)
+    result = evaluate_heldout(GnsEngine(model), data, "valid", count=3)
     kinds = result["by_kind"]
     assert set(kinds) == {"family a", "family c", "starts at rest", "starts thrown"}
     assert kinds["family c"]["model"]["scenes"] == 2 and kinds["family a"]["model"]["scenes"] == 1

@@ -18,6 +18,7 @@ import torch
 
 from runout.errors import InputError
 from runout.gns.checkpoint import save_checkpoint
+from runout.gns.engine import GnsEngine
 from runout.gns.rollout import rollout
 from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
@@ -99,7 +100,7 @@ def toy(tmp_path_factory):
 def problem_for(spec_path: Path, checkpoint: bool = True):
     spec = load_inverse_spec(spec_path)
     observation = load_observation(spec)
-    return spec, observation, inverse_problem(spec, observation, tiny_gns(), checkpoint)
+    return spec, observation, inverse_problem(spec, observation, GnsEngine(tiny_gns()), checkpoint)
 
 
 def run_info(spec, start) -> RunInfo:
@@ -172,7 +173,7 @@ def test_cohesion_needs_a_model_that_reads_it(toy):
     simulator = tiny_gns()
     simulator.schema = simulator.schema.with_material_features(("tan_phi",))
     with pytest.raises(InputError, match="cannot back-calculate c\\[left\\]"):
-        inverse_problem(spec, load_observation(spec), simulator)
+        inverse_problem(spec, load_observation(spec), GnsEngine(simulator))
 
 
 def test_the_gns_fills_the_scene_at_the_models_spacing_so_the_target_must_be_made_there(toy, tmp_path):
@@ -233,7 +234,8 @@ def test_the_inverse_rollout_starts_a_thrown_region_at_its_velocity(tmp_path):
     """A region with an initial velocity enters the inverse's rollout at that velocity, as it
     enters `runout rollout`'s (runout.gns.rollout.start_window): a target rolled out from the
     scene is met exactly at the true strengths, and not by a start from rest."""
-    from runout.gns.rollout import rollout_trajectory, scene_at_rest
+    from runout.gns.rollout import rollout_trajectory
+    from runout.learned.scenes import scene_at_rest
 
     simulator = tiny_gns()
     thrown = json.loads(json.dumps(TOY_SCENE))

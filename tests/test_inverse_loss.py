@@ -10,6 +10,7 @@ import torch
 
 from runout.errors import InputError
 from runout.inverse import invert, load_inverse_spec, load_observation
+from runout.gns.engine import GnsEngine
 from runout.inverse.forward import inverse_problem
 from runout.inverse.loss import data_loss, thickness_profile
 from test_inverse import problem_for, tiny_gns, toy, write_spec  # noqa: F401  (toy: the module fixture)
@@ -87,7 +88,7 @@ def test_an_inverse_on_the_thickness_profile_recovers_the_cohesion(toy, tmp_path
     result = invert(spec, tmp_path, model=toy / "model.pt")
     assert result.best.values[0] == pytest.approx(40.0, rel=0.02)  # kPa, TRUE["right"]
     observation = load_observation(load_inverse_spec(spec))
-    problem = inverse_problem(load_inverse_spec(spec), observation, tiny_gns())
+    problem = inverse_problem(load_inverse_spec(spec), observation, GnsEngine(tiny_gns()))
     assert problem.data_loss.kind == "thickness" and problem.data_loss.width == pytest.approx(4.0)  # two 2 m spacings
 
 

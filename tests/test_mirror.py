@@ -95,9 +95,10 @@ def test_held_out_scenes_are_scored_mirrored_on_request(tmp_path):
     """Standing still scores a scene and its mirror alike (the score has no side); the scenes
     rolled out and scored are the reflected ones."""
     from runout.evaluate.heldout import evaluate_heldout
+    from runout.gns.engine import GnsEngine
 
     data = write_dataset(tmp_path / "data", n_valid=2)
-    model = train(config(data, tmp_path / "run", steps=1))
+    model = GnsEngine(train(config(data, tmp_path / "run", steps=1)))
     plain = evaluate_heldout(model, data, "valid", count=2)
     reflected = evaluate_heldout(model, data, "valid", count=2, mirrored=True)
     assert reflected["standing_still"]["position_error_m"] == pytest.approx(plain["standing_still"]["position_error_m"], rel=1e-5)

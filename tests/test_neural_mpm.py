@@ -3,7 +3,7 @@ right, and a training run resumes exactly."""
 
 from __future__ import annotations
 
-from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -19,6 +19,7 @@ from runout.simfiles import statistics, write_metadata, write_simulations
 from runout.transfer import GridTransfer, stencil_2d
 
 pytestmark = pytest.mark.usefixtures("one_thread")
+REPO = Path(__file__).resolve().parents[1]
 
 # a frictional column (phi 20 deg, c 2 kPa) against the left wall on fixed ground, 8 m cells
 # (4 m point spacing), 64 frames: it collapses to the right
@@ -144,3 +145,49 @@ def test_kinematic_points_never_move(column):
     lo, hi = torch.tensor(column.bounds[:, 0]), torch.tensor(column.bounds[:, 1])
     assert bool(((frames >= lo.float()) & (frames <= hi.float())).all())
     assert float((frames[-1, ~fixed] - frames[0, ~fixed]).abs().max()) > 0.0
+
+
+# ----------------------------------------------------------------------------- the model file selects the engine
+
+
+@pytest.fixture(scope="module")
+def tiny_checkpoint(tmp_path_factory):
+    from runout.neural_mpm.checkpoint import save_checkpoint
+
+    torch.manual_seed(0)
+    engine = NeuralMPM(TINY)
+    for p in engine.parameters():
+        p.data.normal_(0.0, 0.1)
+    engine.data_ranges = {"friction_angle_deg": [10.0, 40.0], "cohesion_kpa": [0.0, 30.0], "point_spacing_m": 4.0,
+                          "source": "a test"}
+    return save_checkpoint(tmp_path_factory.mktemp("model") / "neural-mpm.pt", engine)
+
+
+def test_the_model_file_alone_selects_the_neural_mpm(tiny_checkpoint, tmp_path, capsys):
+    from runout.scene import save_scene
+    from test_cli_exits import run
+
+    save_scene(scene_from_dict({**COLUMN, "time": {"frames": 17}}, "column"), tmp_path / "column.toml")
+    code, err = run(["rollout", "--model", tiny_checkpoint, tmp_path / "column.toml", "--out", tmp_path / "r",
+                     "--no-animation", "--stop-speed", "0"], capsys)
+    assert code == 0, err
+    assert (tmp_path / "r" / "trajectory.npz").is_file()
+    meta = __import__("json").loads((tmp_path / "r" / "metadata.json").read_text())
+    assert "neural MPM" in meta.get("name", "") or "neural MPM" in str(meta)
+
+
+def test_a_checkpoint_of_one_engine_where_the_other_is_asked_for_is_one_sentence(tiny_checkpoint, tmp_path, capsys):
+    from runout.scene import save_scene
+    from test_cli_exits import one_sentence, run
+
+    save_scene(scene_from_dict({**COLUMN, "time": {"frames": 17}}, "column"), tmp_path / "column.toml")
+    code, err = run(["compare", tmp_path / "column.toml", "--model", tiny_checkpoint, "--engine", "gns",
+                     "--out", tmp_path / "c"], capsys)
+    assert code == 2 and one_sentence(err) and "holds a neural-mpm model, but --engine gns was asked for" in err
+    assert not (tmp_path / "c" / "metrics.json").exists()
+    from runout.neural_mpm.checkpoint import read_checkpoint as read_neural_mpm
+    from runout.errors import InputError
+
+    gns_file = REPO / "models" / "slope.pt"
+    with pytest.raises(InputError, match="holds a gns engine's model where a neural-mpm checkpoint was expected"):
+        read_neural_mpm(gns_file)

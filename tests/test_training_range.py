@@ -11,8 +11,9 @@ import pytest
 import torch
 
 from runout.gns.checkpoint import load_simulator, read_checkpoint
-from runout.gns.rollout import scene_at_rest
-from runout.gns.training_range import bound_warnings, measure, range_warnings
+from runout.gns.engine import GnsEngine
+from runout.learned.scenes import scene_at_rest
+from runout.learned.training_range import bound_warnings, measure, range_warnings
 from runout.mpm.cache import MpmCache, scene_key
 from runout.scene import save_scene, scene_from_dict
 from test_cli_exits import TINY, run
@@ -62,14 +63,14 @@ def test_the_recorded_spacing_is_the_datasets_not_the_models_radius():
 
 
 def test_a_scene_inside_the_ranges_gets_no_warning(trained):
-    simulator = load_simulator(trained[1])
+    simulator = GnsEngine(load_simulator(trained[1]))
     lo, hi = simulator.data_ranges["friction_angle_deg"]
     c_lo, c_hi = simulator.data_ranges["cohesion_kpa"]
     assert range_warnings(simulator, scene_at_rest(scene(phi=(lo + hi) / 2, c=(c_lo + c_hi) / 2))) == []
 
 
 def test_each_value_outside_is_named_with_its_range(trained):
-    simulator = load_simulator(trained[1])
+    simulator = GnsEngine(load_simulator(trained[1]))
     lo, hi = simulator.data_ranges["friction_angle_deg"]
     warnings = range_warnings(simulator, scene_at_rest(scene(phi=55.0, c=90.0, width=120.0, cell=8.0)))
     assert any(f"phi = 55 degrees of material sand is outside the model's training range {lo:.4g}-{hi:.4g} degrees" in w for w in warnings)
@@ -80,7 +81,7 @@ def test_each_value_outside_is_named_with_its_range(trained):
 
 
 def test_bounds_reaching_outside_are_named(trained):
-    simulator = load_simulator(trained[1])
+    simulator = GnsEngine(load_simulator(trained[1]))
     hi = simulator.data_ranges["friction_angle_deg"][1]
     assert bound_warnings(simulator, "phi[sand]", "degrees", 15.0, 20.0) == []
     (warning,) = bound_warnings(simulator, "phi[sand]", "degrees", 15.0, 59.0)
@@ -95,7 +96,7 @@ def test_rollout_prints_the_warning(trained, tmp_path, capsys):
 
 
 def test_a_model_without_ranges_says_so():
-    simulator = load_simulator(REPO / "models" / "slope.pt")
+    simulator = GnsEngine(load_simulator(REPO / "models" / "slope.pt"))
     simulator.data_ranges = None
     assert range_warnings(simulator, scene_at_rest(scene())) == [
         "the model records no training ranges, so its use outside them cannot be checked."

@@ -25,10 +25,11 @@ from dataclasses import replace
 from pathlib import Path
 
 from runout.errors import InputError
-from runout.gns.checkpoint import load_simulator
-from runout.gns.rollout import at_model_spacing, rollout_trajectory, scene_at_rest
-from runout.inverse import invert, summary_lines
 from runout.compare import comparison_metrics
+from runout.inverse import invert, summary_lines
+from runout.learned.engine import engine_label
+from runout.learned.load import load_engine
+from runout.learned.scenes import at_model_spacing, scene_at_rest
 from runout.metrics import at_common_times, runout_extent
 from runout.mpm.cache import MpmCache
 from runout.outputs import prepare_folder
@@ -56,24 +57,26 @@ def run_demo(out: Path, model: Path, examples: Path, quick: bool = False, force:
         if not (examples / name).is_file():
             raise InputError(f"--examples {examples}: {name} is missing there.")
     prepare_folder(out, "demo", ("forward", "inverse"), force=force)
-    simulator = load_simulator(model, "cpu")
-    if simulator.schema.material_width < 2:
+    engine = load_engine(model, "cpu")
+    if engine.material_width < 2:
         raise InputError(f"{model}: the demo needs a model with a cohesion input (a fine-tuned slope model).")
-    forward = _forward(simulator, examples / SLOPE, out / "forward", quick, log)
-    inverse = _inverse(simulator, model, examples / DAM, out / "inverse", quick, log)
+    forward = _forward(engine, examples / SLOPE, out / "forward", quick, log)
+    inverse = _inverse(engine, model, examples / DAM, out / "inverse", quick, log)
     return [*forward, *inverse]
 
 
-def _forward(simulator, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, Path, Path]:
-    """GNS runout of a scene from rest beside the MPM's: animation.gif, final.png, metrics.json."""
-    scene = at_model_spacing(load_scene(scene_path), simulator, scene_path.name, log)
+def _forward(engine, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, Path, Path]:
+    """The learned engine's runout of a scene from rest beside the MPM's: animation.gif,
+    final.png, metrics.json."""
+    scene = at_model_spacing(load_scene(scene_path), engine, scene_path.name, log)
     scene = scene.with_frames(QUICK_FRAMES if quick else FORWARD_FRAMES)
     out.mkdir(parents=True, exist_ok=True)
     truth = load_trajectory(_mpm_target(scene, out, log))
     truth.name = f"{scene.name} (MPM)"
     t0 = time.perf_counter()
-    traj = rollout_trajectory(simulator, scene_at_rest(scene), truth.n_frames, stop_speed=None)  # every frame the MPM has
-    traj.name = f"{scene.name} (GNS)"
+    traj = engine.rollout_trajectory(scene_at_rest(scene), truth.n_frames, stop_speed=None)  # every frame the MPM has
+    name = engine_label(engine)
+    traj.name = f"{scene.name} ({name})"
     log(
         f"forward: {traj.n_points} points at {scene.domain.cell_size:g} m cells, {traj.n_frames} frames "
         f"({(traj.n_frames - 1) * traj.frame_dt:.1f} s of flow) in {time.perf_counter() - t0:.0f} s; "
@@ -83,19 +86,19 @@ def _forward(simulator, scene_path: Path, out: Path, quick: bool, log: Log) -> t
     for side in ("left", "right"):
         m = metrics[f"runout_{side}_m"]
         error = "" if m["ape_percent"] is None else f", error {m['ape_percent']:.1f} %"
-        log(f"  {side} front {m['gns']:.1f} m from the axis (MPM {m['mpm']:.1f} m{error})")
+        log(f"  {side} front {m['predicted']:.1f} m from the axis (MPM {m['truth']:.1f} m{error})")
     log(f"  deposit overlap (IoU of {scene.domain.cell_size:g} m cells) {metrics['deposit_iou']:.2f}; "
         f"mean position error {metrics['position_mse_mean_m2'] ** 0.5:.1f} m (root of the mean square)")
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     truth, traj = at_common_times(truth, traj)
-    gif = save_animation([truth, traj], out / "animation.gif", labels=["MPM", "GNS"], stride=None if not quick else 6)
-    final = save_side_by_side([(truth, "MPM"), (traj, "GNS")], out / "final.png")
+    gif = save_animation([truth, traj], out / "animation.gif", labels=["MPM", name], stride=None if not quick else 6)
+    final = save_side_by_side([(truth, "MPM"), (traj, name)], out / "final.png")
     return gif, final, out / "metrics.json"
 
 
-def _inverse(simulator, model: Path, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, ...]:
+def _inverse(engine, model: Path, scene_path: Path, out: Path, quick: bool, log: Log) -> tuple[Path, ...]:
     """Back-calculate c of the dam's lower downstream shell from its MPM deposit."""
-    scene = at_model_spacing(load_scene(scene_path), simulator, scene_path.name, log)
+    scene = at_model_spacing(load_scene(scene_path), engine, scene_path.name, log)
     if FREE_MATERIAL not in scene.materials:
         raise InputError(f"{scene_path}: the demo needs a material named {FREE_MATERIAL}.")
     if quick:
@@ -107,8 +110,10 @@ def _inverse(simulator, model: Path, scene_path: Path, out: Path, quick: bool, l
     result_dir = out / "result"
     shutil.rmtree(result_dir, ignore_errors=True)  # a demo starts afresh (the model may have changed)
     t0 = time.perf_counter()
-    log(f"inverse: L-BFGS-B on c of {FREE_MATERIAL}, one line per GNS rollout with its gradient")
-    result = invert(spec, result_dir, model=model, starts=INVERSE_STARTS, log=lambda line: log(f"  {line}"))
+    name = engine_label(engine)
+    log(f"inverse: L-BFGS-B on c of {FREE_MATERIAL}, one line per {name} rollout with its gradient")
+    result = invert(spec, result_dir, engine=engine.name, model=model, starts=INVERSE_STARTS,
+                    log=lambda line: log(f"  {line}"))
     evaluations = sum(r.evaluations for r in result.starts)
     log(f"inverse: {evaluations} evaluations from {INVERSE_STARTS} starts in {time.perf_counter() - t0:.0f} s")
     for line in summary_lines(result):
@@ -121,9 +126,9 @@ def _inverse(simulator, model: Path, scene_path: Path, out: Path, quick: bool, l
     log("yardstick: the same back-calculation through the MPM itself (reverse-mode AD, --engine mpm-ad)")
     yardstick = invert(spec, yardstick_dir, engine="mpm-ad")
     (found,) = yardstick.best.values
-    (gns_found,) = result.best.values
+    (learned_found,) = result.best.values
     log(f"  c = {found:.4g} kPa after {yardstick.best.evaluations} evaluations in {time.perf_counter() - t0:.0f} s "
-        f"(GNS: {gns_found:.4g} kPa, {100 * (gns_found - truth) / truth:+.0f} %; true {truth:g} kPa)")
+        f"({name}: {learned_found:.4g} kPa, {100 * (learned_found - truth) / truth:+.0f} %; true {truth:g} kPa)")
     names = ("loss.png", "parameters.png", "deposit.png")
     chosen = (result.best.out_dir / n for n in names)  # the start with the lowest loss
     return (*chosen, result_dir / "starts.png", *(yardstick_dir / n for n in names))

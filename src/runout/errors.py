@@ -16,5 +16,9 @@ class RunFailed(RuntimeError):
     """A computation on valid input failed (e.g. it diverged); the message says where."""
 
 
+class RolloutDiverged(RunFailed):
+    """A learned engine's rollout produced non-finite positions."""
+
+
 class Interrupted(Exception):
     """Ctrl-C ended a run; the message says what was saved and how to resume."""

@@ -47,7 +47,7 @@ from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations, mirrored
 from runout.gns.schema import FeatureSchema
 from runout.gns.simulator import Case, Normalisation, Simulator
-from runout.gns.training_range import measure as measure_ranges
+from runout.learned.training_range import measure as measure_ranges
 from runout.metrics import compare
 from runout.outputs import write_atomic
 from runout.simfiles import read_metadata

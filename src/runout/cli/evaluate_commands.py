@@ -65,9 +65,9 @@ class Study:
         checks.device(self.device)
         check_scale(self.scale)
         if frames is not None:
-            from runout.gns.checkpoint import load_simulator
+            from runout.learned.load import load_engine
 
-            load_simulator(self.model).schema.check_frames(frames, "--frames")
+            load_engine(self.model).check_frames(frames, "--frames")
         _claim_out(self.out, name, self.force)
         return EngineRun(MpmCache(self.cache), self.device, self.progress, log=typer.echo)
 

@@ -90,8 +90,9 @@ def train(
 
 @app.command()
 def rollout(
-    model: Path = typer.Option(..., "--model", help="GNS checkpoint (.pt)."),
+    model: Path = typer.Option(..., "--model", help="Learned-engine checkpoint (.pt): a GNS or a neural MPM, the file says which."),
     source: Path = typer.Argument(..., help="SCENE.toml/.json (filled at the model's point spacing, starts at rest), a trajectory folder from `runout mpm`, or a dataset folder."),
+    engine_name: str = typer.Option(None, "--engine", help="gns or neural-mpm: checked against the model file (optional; the file names its engine)."),
     out: Path = typer.Option(..., "--out", help="Output folder: trajectory.npz, metadata.json, metrics.json, pictures, animation."),
     frames: int = typer.Option(0, "--frames", help="Frames (of the data's dt) to cover, frame 0 included (0: the scene's or ground truth's count); a model of frame stride K writes one every K."),
     stop_speed: float = typer.Option(0.05, "--stop-speed", help="Stop once every soil point moves slower than this (m/s); 0: never stop early."),
@@ -103,12 +104,12 @@ def rollout(
     vtk: bool = typer.Option(False, "--vtk", help="Also write ParaView files: vtk/frame_*.vtu and vtk/trajectory.pvd."),
     force: bool = typer.Option(False, "--force", help="Replace another command's results in --out (removing, and naming, the files that command wrote and this run does not rewrite; files runout did not write stay)."),
 ) -> None:
-    """Roll the GNS out from rest (the first frame held) until FRAMES or until the flow stops."""
+    """Roll the model's learned engine (GNS or neural MPM) out from rest until FRAMES or until the flow stops."""
     from runout import checks
-    from runout.gns.checkpoint import load_simulator
-    from runout.gns.rollout import rollout_trajectory
-    from runout.gns.training_range import range_warnings
-    from runout.gns_run import ROLLOUT_FILES, initial_state, write_rollout_outputs
+    from runout.learned.engine import engine_label
+    from runout.learned.load import load_engine
+    from runout.learned.training_range import range_warnings
+    from runout.rollout_run import ROLLOUT_FILES, initial_state, write_rollout_outputs
     from runout.outputs import check_folder, claim
     from runout.plots.animation import animation_name
 
@@ -117,26 +118,26 @@ def rollout(
     checks.device(device)
     writes = ROLLOUT_FILES + ((animation_name(),) if animation else ()) + (("vtk",) if vtk else ())
     folder = check_folder(out, "rollout", writes, force=force)
-    simulator = load_simulator(model, device)
-    begin = initial_state(source, split, index, simulator, log=lambda line: typer.echo(line, err=True))
+    engine = load_engine(model, device, expect=engine_name)
+    begin = initial_state(source, split, index, engine, log=lambda line: typer.echo(line, err=True))
     initial, truth = begin.initial, begin.truth
     for line in begin.warnings:
         typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW)
     n_frames = frames or begin.frames
-    given = simulator.schema.start_frames(from_rest=not from_frames)
+    given = engine.start_frames(from_rest=not from_frames)
     if n_frames <= given:
         raise InputError(f"--frames = {n_frames} must exceed the {given} initial frame{'s' if given > 1 else ''}.")
     if from_frames and source.is_file():
         raise InputError(f"--from-frames: {source} is a scene, which starts at rest; give a trajectory or dataset folder.")
     check_rollout_memory(initial.n_points, n_frames, device)
-    for line in range_warnings(simulator, initial):
+    for line in range_warnings(engine, initial):
         typer.secho(f"warning: {line}", err=True, fg=typer.colors.YELLOW)
     t0 = time.perf_counter()
-    predicted = rollout_trajectory(simulator, initial, n_frames, stop_speed or None, progress=True,
-                                   from_rest=not from_frames)  # RunFailed: exit 1
+    predicted = engine.rollout_trajectory(initial, n_frames, stop_speed or None, progress=True,
+                                          from_rest=not from_frames)  # RunFailed: exit 1
     predicted.info["wall_s"] = round(time.perf_counter() - t0, 3)
     claim(folder)
-    metrics = write_rollout_outputs(predicted, truth, out, simulator.schema.material_width, animation)
+    metrics = write_rollout_outputs(predicted, truth, out, engine.material_width, animation, engine_label(engine))
     if vtk:
         from runout.vtk import write_vtk
 

@@ -12,11 +12,11 @@ from runout.cli.app import app
 @app.command()
 def invert(
     spec: Path = typer.Argument(..., help="Inverse spec (TOML), see docs/inverse-format.md."),
-    model: Path = typer.Option(None, "--model", help="GNS checkpoint (needed by the gns engine)."),
+    model: Path = typer.Option(None, "--model", help="Learned-engine checkpoint: a GNS or a neural MPM, the file says which (needed unless --engine mpm-ad or mpm-fd)."),
     out: Path = typer.Option(..., "--out", help="Output folder; a run killed part-way resumes from it."),
     device: str = typer.Option("cpu", help="cpu or cuda."),
     starts: int = typer.Option(1, help="Starting points: the spec's initial values, then a Latin hypercube (seed 0)."),
-    engine: str = typer.Option("gns", help="gns (autodiff through the GNS rollout), mpm-fd (MPM runs, central differences) or mpm-ad (autodiff through the MPM)."),
+    engine: str = typer.Option(None, help="gns or neural-mpm (autodiff through the model's rollout; default: the engine --model holds), mpm-fd (MPM runs, central differences) or mpm-ad (autodiff through the MPM)."),
     fd_step: float = typer.Option(0.01, help="mpm-fd: finite-difference step as a fraction of each parameter's bounds."),
     checkpoint: bool = typer.Option(True, help="Recompute each rollout step in the backward pass (much less memory)."),
     plot_iterations: str = typer.Option(None, help="Iterations to draw in deposit.png, e.g. '0,1,last' (default: first, second, middle, last)."),
@@ -24,11 +24,10 @@ def invert(
 ) -> None:
     """Fit the spec's free material parameters (phi in degrees, c in kPa) to the target runout
     with L-BFGS-B inside their bounds; writes history.csv, history.json, loss.png,
-    parameters.png and deposit.png, and prints the answer with its bounds. The gns engine
+    parameters.png and deposit.png, and prints the answer with its bounds. A learned engine
     fills the scene at the model's point spacing (the target must be a run at that spacing)."""
     from runout import checks
-    from runout.errors import Interrupted, RunFailed
-    from runout.gns.rollout import RolloutDiverged
+    from runout.errors import Interrupted, RolloutDiverged, RunFailed
     from runout.inverse import invert as run_inversion, summary_lines
 
     checks.device(device)

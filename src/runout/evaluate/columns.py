@@ -29,8 +29,8 @@ from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
 from runout.evaluate.cases import PAPER_ASPECTS, PAPER_COHESIONS, PAPER_PHIS, ColumnCase, ColumnGrid  # noqa: F401  (re-exported)
 from runout.evaluate.scenes import column_file, column_scene, model_scene
-from runout.gns.checkpoint import load_simulator
-from runout.gns.rollout import rollout_trajectory
+from runout.learned.engine import engine_label
+from runout.learned.load import load_engine
 from runout.metrics import (
     absolute_percentage_error, at_common_times, coefficient_of_variation, normalised_runout, r_squared, runout_front,
 )
@@ -65,18 +65,18 @@ def run_columns(model: Path, out: Path, grid: ColumnGrid, run: EngineRun) -> dic
     """Run the study; returns the summary written to OUT/columns/summary.json."""
     folder = Path(out) / "columns"
     cases = grid.cases()
-    simulator = load_simulator(model, run.device)
-    columns = {a: model_scene(grid.examples, column_file(a), simulator, run.log) for a in dict.fromkeys(grid.aspects)}
+    engine = load_engine(model, run.device)
+    columns = {a: model_scene(grid.examples, column_file(a), engine, run.log) for a in dict.fromkeys(grid.aspects)}
     scenes = [column_scene(columns[c.aspect], c, grid.frames, grid.scale) for c in cases]
     mpm_dirs = run.cache.ensure(scenes, run.device, run.progress)
     rows = []
-    for case, scene, mpm_dir in tqdm(list(zip(cases, scenes, mpm_dirs)), desc="GNS columns", disable=not run.progress):
+    for case, scene, mpm_dir in tqdm(list(zip(cases, scenes, mpm_dirs)), desc=f"{engine_label(engine)} columns", disable=not run.progress):
         truth = load_trajectory(mpm_dir)
         start = time.perf_counter()
-        predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None)
+        predicted = engine.rollout_trajectory(truth, truth.n_frames, stop_speed=None)
         wall = time.perf_counter() - start
-        save_trajectory(predicted, folder / "gns" / case.name, simulator.schema.material_width)
-        truth, predicted = at_common_times(truth, predicted)  # the MPM at the GNS's times (frame stride)
+        save_trajectory(predicted, folder / "gns" / case.name, engine.material_width)
+        truth, predicted = at_common_times(truth, predicted)  # the MPM at the engine's times (frame stride)
         rows.append(case_result(case, truth, predicted, scene.domain.point_spacing / 2, wall, mpm_dir.name))
     write_csv(rows, folder / "cases.csv")
     summary = summarise(rows, grid, model)

@@ -23,8 +23,7 @@ from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
 from runout.evaluate.cases import PAPER_CASE, ColumnCase  # noqa: F401  (PAPER_CASE re-exported)
 from runout.evaluate.scenes import EXAMPLES, column_file, column_scene, model_scene
-from runout.gns.checkpoint import load_simulator
-from runout.gns.rollout import rollout_trajectory
+from runout.learned.load import load_engine
 from runout.metrics import at_common_times, velocities
 from runout.trajectory import Trajectory, save_trajectory
 
@@ -37,10 +36,11 @@ def diagnostic_frames(n_frames: int, stride: int = 1) -> list[int]:
     return sorted({round(f / stride) for f in PAPER_FRAMES if round(f / stride) < n_frames} | {n_frames - 1})
 
 
-def training_velocity(simulator, frame_dt: float) -> tuple[np.ndarray, np.ndarray]:
+def training_velocity(engine, frame_dt: float) -> tuple[np.ndarray, np.ndarray]:
     """Mean and standard deviation (m/s) of the training velocities, per axis; frame_dt is
     the model's step (s), frame_stride dataset frames."""
-    return np.asarray(simulator.stats.vel_mean) / frame_dt, np.asarray(simulator.stats.vel_std) / frame_dt
+    mean, std = engine.velocity_statistics()  # m per engine step
+    return np.asarray(mean) / frame_dt, np.asarray(std) / frame_dt
 
 
 def sigma_distance(v: np.ndarray, mean: np.ndarray, std: np.ndarray) -> np.ndarray:
@@ -76,15 +76,15 @@ def run_diagnostics(model: Path, out: Path, run: EngineRun, case: ColumnCase = P
                     scale: float = 1.0, examples: Path = EXAMPLES) -> dict:
     """Run the diagnostics; returns the summary written to OUT/diagnostics/summary.json."""
     folder = Path(out) / "diagnostics"
-    simulator = load_simulator(model, run.device)
-    column = model_scene(examples, column_file(case.aspect), simulator, run.log)
+    engine = load_engine(model, run.device)
+    column = model_scene(examples, column_file(case.aspect), engine, run.log)
     scene = column_scene(column, case, frames, scale)
     truth = run.cache.load(scene, run.device, run.progress)
-    predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None, progress=run.progress)
-    save_trajectory(predicted, folder / "gns", simulator.schema.material_width)
-    truth, predicted = at_common_times(truth, predicted)  # the MPM at the GNS's times (frame stride)
-    mean, std = training_velocity(simulator, predicted.frame_dt)
-    chosen = diagnostic_frames(truth.n_frames, simulator.frame_stride)
+    predicted = engine.rollout_trajectory(truth, truth.n_frames, stop_speed=None, progress=run.progress)
+    save_trajectory(predicted, folder / "gns", engine.material_width)
+    truth, predicted = at_common_times(truth, predicted)  # the MPM at the engine's times (frame stride)
+    mean, std = training_velocity(engine, predicted.frame_dt)
+    chosen = diagnostic_frames(truth.n_frames, engine.frame_stride)
     draw_diagnostics(truth, predicted, chosen, mean, std, case, folder / "velocity_diagnostics.png")
     summary = {
         "study": "diagnostics",

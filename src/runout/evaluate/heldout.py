@@ -72,18 +72,19 @@ def summarise(scenes: list[dict]) -> dict:
     }
 
 
-def evaluate_heldout(simulator, data: str | Path, split: str = "valid", count: int = 16, progress: bool = False,
+def evaluate_heldout(engine, data: str | Path, split: str = "valid", count: int = 16, progress: bool = False,
                      mirrored: bool = False) -> dict:
     """The first `count` scenes of DATA/SPLIT.npz rolled out from rest over all their frames:
     {"model": score(...), "standing_still": score(...)}. mirrored: each scene and its MPM run
     reflected left-right (Trajectory.mirrored), which a model that learned the physics rather
-    than the side the training slopes face scores as it scores them unreflected."""
+    than the side the training slopes face scores as it scores them unreflected. engine: any
+    learned engine (runout.learned.engine)."""
     from runout.dataset import split_trajectories
     truths = list(split_trajectories(data, split, count))
     if mirrored:
         truths = [t.mirrored() for t in truths]
-    spacing = simulator.point_spacing
-    predicted = rollout_all(simulator, truths, progress)
+    spacing = engine.point_spacing
+    predicted = rollout_all(engine, truths, progress)
     result = {"model": score(predicted, truths, spacing),
               "standing_still": score([standing_still(t) for t in truths], truths, spacing)}
     kinds = scene_kinds(data, split, truths)
@@ -114,10 +115,8 @@ def scene_kinds(data: str | Path, split: str, truths: list[Trajectory]) -> dict[
     return {"family": by_family, "start": by_start}
 
 
-def rollout_all(simulator, truths, progress: bool = False) -> list:
+def rollout_all(engine, truths, progress: bool = False) -> list:
     """Every truth rolled out from rest over all its frames, one scene at a time: batching
-    scenes (runout.gns.rollout.rollout_trajectories) was slower on the 2-core CPU (8
+    the GNS's scenes (runout.gns.rollout.rollout_trajectories) was slower on the 2-core CPU (8
     validation scenes, 60 frames: 331 s against 254 s, 1 thread, loaded, 2026-12-03)."""
-    from runout.gns.rollout import rollout_trajectory
-
-    return [rollout_trajectory(simulator, t, t.n_frames, stop_speed=None, progress=progress) for t in truths]
+    return [engine.rollout_trajectory(t, t.n_frames, stop_speed=None, progress=progress) for t in truths]

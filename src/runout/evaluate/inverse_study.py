@@ -30,7 +30,7 @@ from matplotlib.figure import Figure  # no pyplot: no global figure state, no GU
 from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
 from runout.evaluate.scenes import EXAMPLES, example_scene, model_scene, scaled
-from runout.gns.checkpoint import load_simulator
+from runout.learned.load import load_engine
 from runout.inverse import invert
 from runout.plots import draw_displacement, draw_materials
 from runout.scene import save_scene
@@ -49,7 +49,7 @@ def run_inverse(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLE
     """Run the study (the GNS, then the MPM-AD yardstick unless `yardstick` is False); returns
     the summary written to OUT/inverse/summary.json."""
     folder = Path(out) / "inverse"
-    scene = scaled(model_scene(examples, DAM_SCENE, load_simulator(model, run.device), run.log), scale)
+    scene = scaled(model_scene(examples, DAM_SCENE, load_engine(model, run.device), run.log), scale)
     scene = scene.with_frames(frames) if frames is not None else scene
     target = run.cache.ensure([scene], run.device, run.progress)[0]
     folder.mkdir(parents=True, exist_ok=True)

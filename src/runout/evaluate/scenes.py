@@ -30,12 +30,12 @@ def example_scene(examples: Path, name: str) -> Scene:
     return load_scene(path)
 
 
-def model_scene(examples: Path, name: str, simulator, log=None) -> Scene:
-    """EXAMPLES/name filled at the model's point spacing; `log` gets one line when the
-    scene's own cells differ."""
-    from runout.gns.rollout import at_model_spacing  # the engines only when a model is given
+def model_scene(examples: Path, name: str, engine, log=None) -> Scene:
+    """EXAMPLES/name filled at the learned engine's point spacing; `log` gets one line when
+    the scene's own cells differ."""
+    from runout.learned.scenes import at_model_spacing  # the engines only when a model is given
 
-    return at_model_spacing(example_scene(examples, name), simulator, name, log)
+    return at_model_spacing(example_scene(examples, name), engine, name, log)
 
 
 def check_scale(scale: float) -> None:

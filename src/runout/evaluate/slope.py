@@ -24,8 +24,7 @@ from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
 from runout.evaluate.scenes import EXAMPLES, model_scene, scaled
 from runout.evaluate.slope_figures import draw_displacement_error, draw_fields
-from runout.gns.checkpoint import load_simulator
-from runout.gns.rollout import rollout_trajectory
+from runout.learned.load import load_engine
 from runout.metrics import absolute_percentage_error, at_common_times, displacement_error, mound_axis, side_runouts
 from runout.trajectory import Trajectory, save_trajectory
 
@@ -43,20 +42,20 @@ def run_slope(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLES,
               scale: float = 1.0, rerun_mpm: bool = False) -> dict:
     """Run the study; returns the summary written to OUT/slope/summary.json."""
     folder = Path(out) / "slope"
-    simulator = load_simulator(model, run.device)
-    scene = scaled(model_scene(examples, SLOPE_SCENE, simulator, run.log), scale)
+    engine = load_engine(model, run.device)
+    scene = scaled(model_scene(examples, SLOPE_SCENE, engine, run.log), scale)
     scene = scene.with_frames(frames) if frames is not None else scene
     if rerun_mpm:
         run.cache.path(scene).joinpath("metadata.json").unlink(missing_ok=True)
     truth = run.cache.load(scene, run.device, run.progress)
     start = time.perf_counter()
-    predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None, progress=run.progress)
+    predicted = engine.rollout_trajectory(truth, truth.n_frames, stop_speed=None, progress=run.progress)
     gns_wall = time.perf_counter() - start
-    save_trajectory(predicted, folder / "gns", simulator.schema.material_width)
-    truth, predicted = at_common_times(truth, predicted)  # the MPM at the GNS's times (frame stride)
+    save_trajectory(predicted, folder / "gns", engine.material_width)
+    truth, predicted = at_common_times(truth, predicted)  # the MPM at the engine's times (frame stride)
     summary = summarise(truth, predicted, mound_axis(truth), gns_wall, run.device, model)
     summary["scale"] = scale
-    draw_fields(truth, predicted, snapshot_frames(truth.n_frames, simulator.frame_stride), folder)
+    draw_fields(truth, predicted, snapshot_frames(truth.n_frames, engine.frame_stride), folder)
     draw_displacement_error(truth, predicted, folder / "displacement_error.png")
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary

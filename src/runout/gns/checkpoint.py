@@ -4,7 +4,7 @@ Keys: format, schema (node-feature layout), stats (normalisation), radius (m), n
 (layer sizes), model (state dict), and for training runs optimizer, step, rng, train
 (the training settings), train_model (with --ema: the last step's weights, while model holds
 their average, which every command uses), data_ranges (what the model was trained on, see
-runout.gns.training_range; its point_spacing_m is the spacing every GNS command fills a
+runout.learned.training_range; its point_spacing_m is the spacing every GNS command fills a
 scene at, Simulator.point_spacing). Files are written atomically (temporary file, then
 os.replace), so a run killed while saving leaves the previous checkpoint intact.
 
@@ -20,9 +20,6 @@ from __future__ import annotations
 
 import math
 import os
-import pickle
-import re
-import warnings
 from dataclasses import asdict, fields
 from pathlib import Path
 
@@ -32,8 +29,9 @@ from runout import checks
 from runout.contract import MAX_RADIUS, MAX_STEPS, FeatureSchema  # noqa: F401  (MAX_STEPS re-exported)
 from runout.errors import InputError
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.learned.files import GNS_FORMAT, read_plain
 
-FORMAT = "runout-gns-1"
+FORMAT = GNS_FORMAT
 REQUIRED_KEYS = ("format", "schema", "stats", "radius", "network", "model")
 
 
@@ -62,18 +60,9 @@ def save_checkpoint(path: str | Path, simulator: Simulator, **training_state) ->
 
 def read_checkpoint(path: str | Path) -> dict:
     """The checkpoint dictionary (tensors on CPU), checked for the keys a model needs and
-    for plain data only (torch.load with weights_only=True)."""
+    for plain data only (runout.learned.files.read_plain)."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such checkpoint file.")
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # torch warns about pickle protocols of foreign files
-            ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError as exc:
-        raise InputError(_refusal(path, exc)) from None
-    except Exception as exc:  # torch raises many types for a corrupt or foreign file
-        raise InputError(f"{path}: not a readable PyTorch checkpoint ({type(exc).__name__}: {_first_line(exc)}).") from None
+    ckpt = read_plain(path)
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         found = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__
         raise InputError(f"{path}: format is {found!r}; expected a runout GNS checkpoint ({FORMAT!r}).")
@@ -82,21 +71,6 @@ def read_checkpoint(path: str | Path) -> dict:
         raise InputError(f"{path}: the checkpoint lacks the key '{missing[0]}'.")
     check_contents(ckpt, path)
     return ckpt
-
-
-def _refusal(path: Path, exc: Exception) -> str:
-    """One sentence for a file torch's plain-data unpickler stopped reading."""
-    found = re.search(r"GLOBAL (\S+)", str(exc))
-    if found:
-        return (f"{path}: refused to load, because it holds the Python object '{found.group(1)}' "
-                "rather than tensors and plain data (nothing in it was run).")
-    detail = re.search(r"WeightsUnpickler error:\s*(.+)", str(exc))
-    reason = detail.group(1).strip().rstrip(".") if detail else "not plain data"
-    return f"{path}: not a readable PyTorch checkpoint of plain data ({reason}); nothing in it was run."
-
-
-def _first_line(exc: Exception) -> str:
-    return str(exc).strip().splitlines()[0].rstrip(".") if str(exc).strip() else "no detail"
 
 
 def check_contents(ckpt: dict, path) -> None:

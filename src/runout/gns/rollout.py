@@ -12,24 +12,18 @@ RolloutDiverged. With `checkpoint=True` each step is recomputed in the backward 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
 
 import numpy as np
 import torch
 from torch.utils.checkpoint import checkpoint as recompute_in_backward
 from tqdm.auto import tqdm
 
-from runout.errors import InputError, RunFailed
+from runout.errors import InputError, RolloutDiverged  # noqa: F401  (RolloutDiverged re-exported)
 from runout.gns.simulator import Case, Simulator
-from runout.scene import Scene, fill_points
-from runout.trajectory import Trajectory, trajectory_for_scene
+from runout.trajectory import Trajectory
 
 CHECK_EVERY = 10  # steps between host checks for NaN and for a stopped flow
 MIN_FRAMES_BEFORE_STOP = 40  # dataset frames: a slope at rest needs time to start failing
-
-
-class RolloutDiverged(RunFailed):
-    """The rollout produced non-finite positions."""
 
 
 def rollout(
@@ -177,33 +171,3 @@ def rollout_trajectories(
         )
         for part, initial, start in zip(parts, initials, starts)
     ]
-
-
-def scene_at_rest(scene: Scene, frames: int = 1) -> Trajectory:
-    """`frames` identical frames of the scene's filled points: the scene at frame 0, where
-    rollout_trajectory starts (from_rest) every scene, with its regions' velocities
-    (initial_velocity, m/s; zero for kinematic points)."""
-    points = fill_points(scene)
-    positions = np.repeat(points.position[None].astype(np.float32), frames, axis=0)
-    traj = trajectory_for_scene(scene, positions, points.particle_type, points.material_id)
-    velocity = np.asarray(points.velocity, dtype=np.float64).copy()
-    velocity[~traj.soil] = 0.0
-    traj.initial_velocity = velocity
-    return traj
-
-
-def at_model_spacing(
-    scene: Scene, simulator: Simulator, source: str = "<scene>", log: Callable[[str], None] | None = None,
-) -> Scene:
-    """The scene with cells sized so that its points sit at the model's training spacing
-    (simulator.point_spacing), so the model sees graphs like its own; every GNS command fills
-    scenes through here. When the scene's own cells differ, one line to `log` says so."""
-    spacing = simulator.point_spacing  # m
-    try:
-        filled = scene.with_point_spacing(spacing, source)
-    except InputError as exc:
-        raise InputError(f"{str(exc).rstrip('.')} (when filled at the model's {spacing:g} m point spacing).") from None
-    if log is not None and not math.isclose(filled.domain.cell_size, scene.domain.cell_size, rel_tol=1e-6):
-        log(f"filling {source} at the model's {spacing:g} m spacing ({filled.domain.cell_size:g} m cells) "
-            f"instead of the scene's {scene.domain.cell_size:g} m cells")
-    return filled

@@ -174,7 +174,7 @@ class Simulator(nn.Module):
         self.stats = stats
         self.radius = float(radius)  # m, connectivity radius R
         self.config = config
-        self.data_ranges: dict | None = None  # what it was trained on (runout.gns.training_range)
+        self.data_ranges: dict | None = None  # what it was trained on (runout.learned.training_range)
         self.type_embedding = nn.Embedding(schema.particle_types, schema.type_embedding)
         self.network = EncodeProcessDecode(
             schema.node_width, schema.edge_width, schema.dim,
@@ -229,7 +229,7 @@ class Simulator(nn.Module):
     def point_spacing(self) -> float:
         """The lattice spacing (m) of the points the model was trained on: its data_ranges'
         point_spacing_m, or the spacing of its radius (runout.contract) for a checkpoint that records none.
-        Scenes are filled at this spacing for the model (runout.gns.rollout.at_model_spacing)."""
+        Scenes are filled at this spacing for the model (runout.learned.scenes.at_model_spacing)."""
         recorded = (self.data_ranges or {}).get("point_spacing_m")
         return float(recorded) if recorded else spacing_for_radius(self.radius)
 

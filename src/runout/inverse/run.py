@@ -20,7 +20,8 @@ from runout.inverse.optimise import Log, StartResult, run_starts, spread
 from runout.inverse.spec import InverseSpec, load_inverse_spec
 from runout.outputs import check_folder, claim
 
-ENGINES = ("gns", "mpm-fd", "mpm-ad")
+LEARNED = ("gns", "neural-mpm")  # engines read from --model (runout.learned)
+ENGINES = (*LEARNED, "mpm-fd", "mpm-ad")
 MAX_STARTS = 100
 
 
@@ -41,7 +42,7 @@ def invert(
     model: str | Path | None = None,
     device: str = "cpu",
     starts: int = 1,
-    engine: str = "gns",
+    engine: str | None = None,
     fd_step: float = 0.01,
     checkpoint: bool = True,
     plot_iterations: str | None = None,
@@ -52,12 +53,14 @@ def invert(
 ) -> InversionResult:
     """Back-calculate the spec's free parameters; write histories and figures to out_dir.
 
-    With the gns engine the scene is filled at the model's point spacing (a line to `log`
-    when its own cells differ), so the target must be a run of the scene at that spacing.
+    engine: mpm-ad or mpm-fd (through the MPM itself), or a learned engine (gns, neural-mpm),
+    whose model file names it: with a model and no engine, the file's engine is used. A
+    learned engine's scene is filled at its point spacing (a line to `log` when its own cells
+    differ), so the target must be a run of the scene at that spacing.
     A run killed part-way resumes when called again with the same arguments (force: start
     afresh). `log` receives one line per evaluation, `warn` each warning (e.g. a value
     outside the model's training range); `progress` shows a bar over each forward run."""
-    if engine not in ENGINES:
+    if engine is not None and engine not in ENGINES:
         raise InputError(f"--engine {engine!r} must be one of {', '.join(ENGINES)}.")
     if not 1 <= starts <= MAX_STARTS:
         raise InputError(f"--starts {starts} is outside the allowed range [1, {MAX_STARTS}].")
@@ -65,12 +68,13 @@ def invert(
     spec = load_inverse_spec(spec_path)
     chosen = check_iterations(plot_iterations, spec.optimiser.max_iterations)
     folder = check_folder(out_dir, "invert", _writes(starts), mode="resume", force=force)
-    simulator, filled = None, "the scene"
-    if engine == "gns":
-        simulator = _gns_model(model, device)
-        spec, filled = _at_model_spacing(spec, simulator, log)
-    observation = load_observation(spec, filled, 1 if simulator is None else simulator.frame_stride)
-    evaluate, model_name = _evaluator(spec, observation, engine, simulator, model, device, fd_step, checkpoint, progress,
+    learned, filled = None, "the scene"
+    if engine is None or engine in LEARNED:
+        learned = _learned_engine(model, device, engine)
+        engine = learned.name
+        spec, filled = _at_model_spacing(spec, learned, log)
+    observation = load_observation(spec, filled, 1 if learned is None else learned.frame_stride)
+    evaluate, model_name = _evaluator(spec, observation, engine, learned, model, device, fd_step, checkpoint, progress,
                                       warn)
     claim(folder)
     info = RunInfo(digest=spec.digest, engine=engine, model=model_name, start=[])
@@ -93,25 +97,29 @@ def _writes(starts: int) -> tuple[str, ...]:
     return tuple(f"start_{k:02d}" for k in range(starts)) + ("starts.json", "starts.csv", "starts.png")
 
 
-def _gns_model(model, device: str):
-    from runout.inverse.forward import load_model
+def _learned_engine(model, device: str, engine: str | None):
+    from runout.learned.load import load_engine
 
-    return load_model(None if model is None else Path(model), device)
+    if model is None and engine is None:
+        raise InputError("give --model CHECKPOINT (a learned engine's file) or --engine mpm-ad or mpm-fd.")
+    if model is None:
+        raise InputError(f"the {engine} engine needs a trained model; pass --model CHECKPOINT.")
+    return load_engine(Path(model), device, expect=engine)
 
 
-def _at_model_spacing(spec: InverseSpec, simulator, log: Log | None) -> tuple[InverseSpec, str]:
-    """The spec with its scene filled at the model's point spacing, and the words for that
+def _at_model_spacing(spec: InverseSpec, engine, log: Log | None) -> tuple[InverseSpec, str]:
+    """The spec with its scene filled at the engine's point spacing, and the words for that
     scene in errors about the target (which must be a run of it)."""
-    from runout.gns.rollout import at_model_spacing
+    from runout.learned.scenes import at_model_spacing
 
-    scene = at_model_spacing(spec.scene, simulator, f"the scene of {spec.source}", log)
+    scene = at_model_spacing(spec.scene, engine, f"the scene of {spec.source}", log)
     cell = scene.domain.cell_size
     same = cell == spec.scene.domain.cell_size
-    filled = "the scene" if same else f"the scene at the model's {simulator.point_spacing:g} m point spacing ({cell:g} m cells)"
+    filled = "the scene" if same else f"the scene at the model's {engine.point_spacing:g} m point spacing ({cell:g} m cells)"
     return replace(spec, scene=scene), filled
 
 
-def _evaluator(spec, observation, engine, simulator, model, device, fd_step, checkpoint, progress, warn):
+def _evaluator(spec, observation, engine, learned, model, device, fd_step, checkpoint, progress, warn):
     if engine == "mpm-fd":
         from runout.inverse.mpm_fd import MpmFiniteDifference
         from runout.mpm.budget import check_budget
@@ -122,17 +130,17 @@ def _evaluator(spec, observation, engine, simulator, model, device, fd_step, che
         from runout.inverse.mpm_ad import MpmAutodiff
 
         return MpmAutodiff(spec, observation, device), ""
-    from runout.gns.rollout import scene_at_rest
-    from runout.gns.training_range import bound_warnings, range_warnings
     from runout.inverse.forward import inverse_problem
+    from runout.learned.scenes import scene_at_rest
+    from runout.learned.training_range import bound_warnings, range_warnings
 
     if warn is not None:
-        lines = range_warnings(simulator, scene_at_rest(spec.scene), f"the scene of {spec.source}")
+        lines = range_warnings(learned, scene_at_rest(spec.scene), f"the scene of {spec.source}")
         for p in spec.free:
-            lines += bound_warnings(simulator, p.name, p.unit, p.lower, p.upper)
+            lines += bound_warnings(learned, p.name, p.unit, p.lower, p.upper)
         for line in lines:
             warn(line)
-    return inverse_problem(spec, observation, simulator, checkpoint, progress).evaluate, str(Path(model).resolve())
+    return inverse_problem(spec, observation, learned, checkpoint, progress).evaluate, str(Path(model).resolve())
 
 
 def _draw(result: StartResult, observation: Observation, chosen, warn: Log | None) -> None:

@@ -32,13 +32,15 @@ import numpy as np
 import torch
 from torch import nn
 from torch.utils.checkpoint import checkpoint as recompute_in_backward
+from tqdm.auto import tqdm
 
 from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
-from runout.errors import InputError
+from runout.errors import InputError, RolloutDiverged
 from runout.neural_mpm.unet import UNet
 from runout.transfer import GridTransfer
 
 ENGINE_NAME = "neural-mpm"
+MIN_FRAMES_BEFORE_STOP = 40  # dataset frames: a slope at rest needs time to start failing
 FILL_FLOOR = 0.05  # fill below which a node's mean velocity and material fade to zero (no soil there)
 
 
@@ -91,12 +93,17 @@ class Points:
 
 
 class NeuralMPM(nn.Module):
+    """The engine; also the learned-engine contract (runout.learned.engine) every command uses."""
+
     name = ENGINE_NAME
+    frame_stride = 1  # it steps through every dataset frame
+    particle_types = 9  # type 3 is kinematic, every other type below 9 is soil
 
     def __init__(self, config: NeuralMPMConfig):
         super().__init__()
         self.config = config
         self.net = UNet(config.in_channels, 2 * config.frames_per_call, config.widths)
+        self.data_ranges: dict | None = None  # what it was trained on (runout.learned.training_range)
 
     # ------------------------------------------------------------------ contract of a learned engine
 
@@ -111,6 +118,62 @@ class NeuralMPM(nn.Module):
     @property
     def material_width(self) -> int:
         return self.config.material_width
+
+    def start_frames(self, from_rest: bool = True) -> int:
+        if not from_rest:
+            raise InputError("the neural MPM starts every run from rest (frame 0); --from-frames is the GNS's alone.")
+        return 1
+
+    def check_frames(self, frames: int, where: str, from_rest: bool = True) -> None:
+        if frames < self.start_frames(from_rest) + 1:
+            raise InputError(f"{where} = {frames} must be at least 2: frame 0 and the first frame the engine predicts.")
+
+    def freeze(self) -> None:
+        self.requires_grad_(False)
+
+    def velocity_statistics(self) -> tuple[list[float], list[float]]:
+        """Mean and standard deviation per axis of the soil's training velocities, m per frame
+        (data_ranges' velocity_m_per_frame; without it, zero and velocity_scale)."""
+        recorded = (self.data_ranges or {}).get("velocity_m_per_frame")
+        if recorded:
+            return list(recorded["mean"]), list(recorded["std"])
+        return [0.0, 0.0], [self.config.velocity_scale] * 2
+
+    def rollout_trajectory(self, start, n_frames: int, stop_speed: float | None = 0.05, progress: bool = False,
+                           from_rest: bool = True):
+        """The engine's run of `start`'s frame 0 (a Trajectory; its start_velocity() for points
+        thrown at frame 0) over n_frames frames; with stop_speed (m/s), ends after the first
+        call in which no soil point moved faster (never before MIN_FRAMES_BEFORE_STOP)."""
+        from dataclasses import replace
+
+        self.start_frames(from_rest)
+        check_frame_dt(self, start.frame_dt, start.name)
+        x0, velocity = start_state(start.positions[0], start.start_velocity())
+        ptype = torch.from_numpy(np.asarray(start.particle_type))
+        material = torch.from_numpy(start.material_features(self.material_width))
+        with torch.no_grad():
+            frames = self.rollout(x0, ptype, material, np.asarray(start.bounds, dtype=np.float32), n_frames, velocity,
+                                  stop_speed=None if stop_speed is None else stop_speed * self.config.frame_dt,
+                                  progress=progress)
+        info = {"engine": ENGINE_NAME, "frames_requested": n_frames, "frame_stride": 1, "start": "rest"}
+        return replace(start, positions=frames.cpu().numpy().astype(np.float32), frame_dt=self.config.frame_dt,
+                       info=info)
+
+    def forward_model(self, initial, initial_velocity, particle_type, frame_dt: float, frames: list[int], steps: int,
+                      bounds, checkpoint: bool = True, progress: bool = False):
+        """Material features [N, k] -> positions [F, N, 2] (m) at `frames` of a rollout from rest
+        over `steps` frames, differentiable in the features (runout.learned.engine)."""
+        check_frame_dt(self, frame_dt, "the observation")
+        x0, velocity = start_state(initial, initial_velocity)
+        ptype = torch.as_tensor(np.asarray(particle_type))
+        chosen = torch.tensor(frames, device=self.device)
+        box = np.asarray(bounds, dtype=np.float32)
+
+        def forward(features: torch.Tensor) -> torch.Tensor:
+            return self.rollout(x0, ptype, features, box, steps + 1, velocity, checkpoint=checkpoint,
+                                progress=progress)[chosen]
+
+        return forward
 
     # ------------------------------------------------------------------ the grid
 
@@ -167,12 +230,14 @@ class NeuralMPM(nn.Module):
 
     def rollout(self, positions: torch.Tensor, particle_type: torch.Tensor, material: torch.Tensor,
                 bounds, n_frames: int, start_velocity: torch.Tensor | None = None, scene: torch.Tensor | None = None,
-                checkpoint: bool = False) -> torch.Tensor:
+                checkpoint: bool = False, stop_speed: float | None = None, progress: bool = False) -> torch.Tensor:
         """Positions [n_frames, P, 2] (m), frame 0 = positions [P, 2] (m), one frame every
         frame_dt. start_velocity [P, 2] m/s at frame 0 (None: at rest, how every scene starts);
         material [P, k] (may require grad); bounds [2, 2] m, or [B, 2, 2] with scene [P] the
         point's scene when several scenes run together. checkpoint: recompute each call in the
-        backward pass (memory of one call instead of all)."""
+        backward pass (memory of one call instead of all). stop_speed (m per frame): end after
+        the first call, past MIN_FRAMES_BEFORE_STOP, in which no soil point moved faster (fewer
+        frames come back)."""
         cfg = self.config
         device = self.device
         x = positions.to(device)
@@ -184,12 +249,23 @@ class NeuralMPM(nn.Module):
         step = (torch.zeros_like(x) if start_velocity is None
                 else torch.as_tensor(start_velocity, dtype=x.dtype, device=device) * cfg.frame_dt)
         velocities = step[None].expand(cfg.history, -1, -1)
-        frames = self.advance(x, velocities, pts, math.ceil((n_frames - 1) / cfg.frames_per_call), checkpoint)
-        return torch.cat([x[None], frames])[:n_frames]
+        calls = math.ceil((n_frames - 1) / cfg.frames_per_call)
+        out = [x[None]]
+        for k in tqdm(range(calls), disable=not progress, desc="neural MPM rollout", unit="call"):
+            frames, velocities = self.advance(out[-1][-1], velocities, pts, 1, checkpoint, keep_velocities=True)
+            out.append(frames)
+            if not bool(torch.isfinite(frames[-1]).all()):
+                raise RolloutDiverged(f"the neural MPM produced non-finite positions by frame {(k + 1) * cfg.frames_per_call}.")
+            done = (k + 1) * cfg.frames_per_call
+            if stop_speed is not None and done >= MIN_FRAMES_BEFORE_STOP and not torch.is_grad_enabled():
+                if float(velocities[:, ~pts.fixed].norm(dim=-1).amax()) < stop_speed:
+                    break
+        return torch.cat(out)[:n_frames]
 
     def advance(self, x: torch.Tensor, velocities: torch.Tensor, pts: Points, calls: int,
-                checkpoint: bool = False) -> torch.Tensor:
-        """Positions [calls m, P, 2] of the frames after x [P, 2], chaining `calls` calls."""
+                checkpoint: bool = False, keep_velocities: bool = False):
+        """Positions [calls m, P, 2] of the frames after x [P, 2], chaining `calls` calls (and the
+        last `history` frame velocities after them when keep_velocities)."""
         origin, shape = self.grid(pts.bounds)
         static = self.static_channels(pts.bounds, origin, shape)
         h = self.config.history
@@ -203,7 +279,7 @@ class NeuralMPM(nn.Module):
             velocities = torch.cat([velocities, chain[1:] - chain[:-1]])[-h:]
             x = frames[-1]
             out.append(frames)
-        return torch.cat(out)
+        return (torch.cat(out), velocities) if keep_velocities else torch.cat(out)
 
 
 def _transfer(x, pts: Points, point_origin, dx, grid_shape) -> GridTransfer:

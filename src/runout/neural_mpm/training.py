@@ -15,18 +15,18 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import signal
 import time
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from runout.errors import InputError
-from runout.neural_mpm.engine import ENGINE_NAME, NeuralMPM, NeuralMPMConfig
+from runout.defaults import PARTICLE_TYPE_KINEMATIC, PARTICLE_TYPE_SOIL
+from runout.neural_mpm.checkpoint import read_checkpoint, save_checkpoint
+from runout.neural_mpm.engine import NeuralMPM, NeuralMPMConfig
 from runout.neural_mpm.windows import WindowSampler
 
 CHECKPOINT = "checkpoint.pt"
@@ -69,19 +69,9 @@ def window_loss(engine: NeuralMPM, window, calls: int) -> torch.Tensor:
     return (err ** 2).sum(-1).mean()
 
 
-def save_atomic(path: Path, payload: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(payload, tmp)
-    os.replace(tmp, path)
-
-
-def checkpoint_payload(engine: NeuralMPM, optimizer, step: int, cpu_seconds: float, best: float,
-                       settings: TrainSettings) -> dict:
-    return {
-        "engine": ENGINE_NAME, "config": engine.config.as_dict(), "model": engine.state_dict(),
-        "optimizer": optimizer.state_dict(), "step": step, "cpu_seconds": cpu_seconds, "best": best,
-        "train": asdict(settings),
-    }
+def training_state(optimizer, step: int, cpu_seconds: float, best: float, settings: TrainSettings) -> dict:
+    return {"optimizer": optimizer.state_dict(), "step": step, "cpu_seconds": cpu_seconds, "best": best,
+            "train": asdict(settings)}
 
 
 class RunLog:
@@ -98,16 +88,17 @@ def train(settings: TrainSettings, config: NeuralMPMConfig | None = None, resume
     torch.set_num_threads(settings.threads)
     out = Path(settings.out)
     out.mkdir(parents=True, exist_ok=True)
-    state = torch.load(out / CHECKPOINT, weights_only=True) if resume and (out / CHECKPOINT).is_file() else None
+    state = read_checkpoint(out / CHECKPOINT) if resume and (out / CHECKPOINT).is_file() else None
     config = NeuralMPMConfig.from_dict(state["config"]) if state is not None else config or NeuralMPMConfig()
     sampler = WindowSampler.from_split(settings.data, "train", config.history, config.material_width)
     if config.velocity_scale <= 0:  # a new run: the unit of velocity from its data
-        config = replace(config, velocity_scale=sampler.velocity_scale())
+        config = replace(config, velocity_scale=sampler.velocity_statistics()["scale"])
     with torch.random.fork_rng():  # the initial weights follow the run's seed
         torch.manual_seed(settings.seed)
         engine = NeuralMPM(config)
     optimizer = torch.optim.Adam(engine.parameters(), lr=settings.lr)
     start, cpu_before, best = 0, 0.0, math.inf
+    engine.data_ranges = _ranges(settings, sampler) if state is None else state.get("data_ranges")
     if state is not None:
         engine.load_state_dict(state["model"])
         optimizer.load_state_dict(state["optimizer"])
@@ -147,17 +138,27 @@ def train(settings: TrainSettings, config: NeuralMPMConfig | None = None, resume
             log.write(event="valid", step=step, cpu_hours=cpu_used() / 3600, **_headline(result))
             if result["position_error_m"] < best:
                 best = result["position_error_m"]
-                save_atomic(out / BEST, checkpoint_payload(engine, optimizer, step, cpu_used(), best, settings))
+                save_checkpoint(out / BEST, engine, **training_state(optimizer, step, cpu_used(), best, settings))
         out_of_time = (settings.max_hours is not None and time.monotonic() - t_wall > settings.max_hours * 3600
                        or settings.max_cpu_hours is not None and cpu_used() > settings.max_cpu_hours * 3600)
         if step % settings.save_every == 0 or out_of_time or stop.asked or step == settings.steps:
-            save_atomic(out / CHECKPOINT, checkpoint_payload(engine, optimizer, step, cpu_used(), best, settings))
+            save_checkpoint(out / CHECKPOINT, engine, **training_state(optimizer, step, cpu_used(), best, settings))
         if out_of_time or stop.asked:
             log.write(event="stop", step=step, reason="time" if out_of_time else "signal", cpu_hours=cpu_used() / 3600)
             break
     bar.close()
     stop.restore()
     return engine
+
+
+def _ranges(settings: TrainSettings, sampler: WindowSampler) -> dict:
+    """What the engine is trained on (runout.learned.training_range), with the spacing of its points."""
+    from runout.learned.training_range import measure
+    fixed = [f.numpy() for f in sampler.fixed]
+    types = [np.where(f, PARTICLE_TYPE_KINEMATIC, PARTICLE_TYPE_SOIL) for f in fixed]
+    ranges = measure([m.numpy() for m in sampler.material], types, sampler.meta, 0.0, f"{settings.data}/train.npz")
+    velocity = sampler.velocity_statistics()
+    return {**ranges, "velocity_m_per_frame": {"mean": velocity["mean"], "std": velocity["std"]}}
 
 
 def _heldout(settings: TrainSettings) -> list:
@@ -171,18 +172,8 @@ def _headline(result: dict) -> dict:
 
 
 def rollout_like(engine: NeuralMPM, truth):
-    """The engine's rollout from rest of a truth trajectory's frame 0, over all its frames,
-    as a Trajectory beside the truth."""
-    from runout.neural_mpm.engine import check_frame_dt
-    check_frame_dt(engine, truth.frame_dt, truth.name)
-    velocity = truth.start_velocity()
-    with torch.no_grad():
-        frames = engine.rollout(torch.from_numpy(np.asarray(truth.positions[0], dtype=np.float32)),
-                                torch.from_numpy(np.asarray(truth.particle_type)),
-                                torch.from_numpy(truth.material_features(engine.material_width)),
-                                np.asarray(truth.bounds, dtype=np.float32), truth.n_frames,
-                                start_velocity=torch.from_numpy(velocity.astype(np.float32)) if velocity.any() else None)
-    return replace(truth, positions=frames.numpy(), info={"engine": ENGINE_NAME})
+    """The engine's rollout from rest of a truth trajectory's frame 0, over all its frames."""
+    return engine.rollout_trajectory(truth, truth.n_frames, stop_speed=None)
 
 
 def evaluate(engine: NeuralMPM, truths: list) -> dict:

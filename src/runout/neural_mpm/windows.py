@@ -37,12 +37,13 @@ class WindowSampler:
     fixed [N] (kinematic points), material [N, k] per simulation, bounds [2, 2] m shared."""
 
     def __init__(self, positions: list[np.ndarray], fixed: list[np.ndarray], material: list[np.ndarray],
-                 bounds, history: int):
+                 bounds, history: int, meta: dict | None = None):
         self.positions = [torch.from_numpy(np.ascontiguousarray(p, dtype=np.float32)) for p in positions]
         self.fixed = [torch.from_numpy(np.asarray(f, dtype=bool)) for f in fixed]
         self.material = [torch.from_numpy(np.asarray(m, dtype=np.float32)) for m in material]
         self.bounds = torch.tensor(np.asarray(bounds, dtype=np.float32))
         self.history = history
+        self.meta = meta or {"bounds": np.asarray(bounds).tolist()}  # the dataset's metadata.json
 
     @classmethod
     def from_split(cls, data: str | Path, split: str, history: int, material_width: int) -> "WindowSampler":
@@ -55,7 +56,7 @@ class WindowSampler:
             raise InputError(f"{data / f'{split}.npz'}: holds {sorted(widths)} material features per point; "
                              f"the engine reads {material_width} ([tan phi, c / 100 kPa]).")
         return cls([p for p, _, _ in sims], [np.asarray(t) == PARTICLE_TYPE_KINEMATIC for _, t, _ in sims],
-                   [m for _, _, m in sims], meta["bounds"], history)
+                   [m for _, _, m in sims], meta["bounds"], history, meta)
 
     def __len__(self) -> int:
         return len(self.positions)
@@ -89,11 +90,15 @@ class WindowSampler:
         points = Points(torch.cat(fixed), torch.cat(material), torch.cat(scene), self.bounds[None].expand(batch, -1, -1))
         return Window(torch.cat(xs), torch.cat(vels, 1), torch.cat(targets, 1), points)
 
-    def velocity_scale(self) -> float:
-        """m per frame: the standard deviation of the soil's frame velocities over the data."""
-        total, count = 0.0, 0
+    def velocity_statistics(self) -> dict:
+        """Mean and standard deviation per axis of the soil's frame velocities over the data
+        (m per frame), and their root mean square over both axes ("scale")."""
+        total, square, count = torch.zeros(2, dtype=torch.float64), torch.zeros(2, dtype=torch.float64), 0
         for pos, fixed in zip(self.positions, self.fixed):
-            v = pos[1:, ~fixed] - pos[:-1, ~fixed]
-            total += float((v.double() ** 2).sum())
-            count += v.numel()
-        return (total / max(count, 1)) ** 0.5
+            v = (pos[1:, ~fixed] - pos[:-1, ~fixed]).double().reshape(-1, 2)
+            total += v.sum(0)
+            square += (v ** 2).sum(0)
+            count += v.shape[0]
+        mean, mean_square = total / max(count, 1), square / max(count, 1)
+        std = (mean_square - mean ** 2).clamp(min=0.0).sqrt()
+        return {"mean": mean.tolist(), "std": std.tolist(), "scale": float(mean_square.mean().sqrt())}

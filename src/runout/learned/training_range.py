@@ -1,5 +1,5 @@
-"""What a GNS model was trained on, recorded in its checkpoint, and warnings when it is used
-outside that: friction angle, cohesion, domain size, point spacing, materials per scene.
+"""What a learned engine was trained on, recorded in its checkpoint, and warnings when it is
+used outside that: friction angle, cohesion, domain size, point spacing, materials per scene.
 
 `measure` runs at training time over the training split (soil points only) and the
 dataset's metadata; the result is stored as the checkpoint's `data_ranges`:
@@ -8,11 +8,12 @@ dataset's metadata; the result is stored as the checkpoint's `data_ranges`:
     cohesion_kpa        [lo, hi] | None from the c / 100 kPa feature (None: no cohesion input)
     domain_m            [width, height] the largest training domain
     point_spacing_m     float           the lattice spacing of the training scenes (the spacing
-                                        every GNS command fills a scene at, Simulator.point_spacing)
+                                        every learned-engine command fills a scene at, the engine's point_spacing)
     materials_per_scene [lo, hi]        distinct soil materials in one simulation
     source              str             where the numbers come from
 
-`range_warnings(simulator, trajectory)` names each value outside them, with the range.
+`range_warnings(engine, trajectory)` names each value outside them, with the range; any
+engine with `data_ranges` and `material_width` (runout.learned.engine) is checked alike.
 """
 
 from __future__ import annotations
@@ -64,9 +65,9 @@ def point_spacing(traj: Trajectory) -> float | None:
     return float(np.median(gaps)) if len(gaps) else None
 
 
-def range_warnings(simulator, traj: Trajectory, what: str = "the scene") -> list[str]:
+def range_warnings(engine, traj: Trajectory, what: str = "the scene") -> list[str]:
     """One sentence per value of `traj` outside the model's recorded training ranges."""
-    ranges = getattr(simulator, "data_ranges", None)
+    ranges = getattr(engine, "data_ranges", None)
     if not ranges:
         return ["the model records no training ranges, so its use outside them cannot be checked."]
     out = []
@@ -75,7 +76,7 @@ def range_warnings(simulator, traj: Trajectory, what: str = "the scene") -> list
         m = traj.materials[k]
         out += _outside(f"phi = {m.friction_angle:.4g} degrees of material {m.name}", m.friction_angle,
                         ranges.get("friction_angle_deg"), "degrees")
-        if simulator.schema.material_width > 1:
+        if engine.material_width > 1:
             out += _outside(f"c = {m.cohesion:.4g} kPa of material {m.name}", m.cohesion,
                             ranges.get("cohesion_kpa"), "kPa")
     out += _domain(traj, ranges.get("domain_m"), what)
@@ -86,9 +87,9 @@ def range_warnings(simulator, traj: Trajectory, what: str = "the scene") -> list
     return out
 
 
-def bound_warnings(simulator, name: str, unit: str, lower: float, upper: float) -> list[str]:
+def bound_warnings(engine, name: str, unit: str, lower: float, upper: float) -> list[str]:
     """A free parameter's search bounds against the trained range of its property."""
-    ranges = getattr(simulator, "data_ranges", None) or {}
+    ranges = getattr(engine, "data_ranges", None) or {}
     key = "friction_angle_deg" if unit == "degrees" else "cohesion_kpa"
     trained = ranges.get(key)
     if not trained or (trained[0] <= lower and upper <= trained[1]):

@@ -1,0 +1,91 @@
+"""Neural-MPM checkpoints: one file holding the engine (its config and weights), what it was
+trained on (data_ranges, runout.learned.training_range) and, for a training run, the state to
+resume it (optimizer, step, cpu_seconds, best, train settings). Written atomically (temporary
+file, then os.replace); read as plain data (runout.learned.files.read_plain) and checked
+entry by entry before anything is built from it."""
+
+from __future__ import annotations
+
+import os
+from dataclasses import fields
+from pathlib import Path
+
+import torch
+
+from runout import checks
+from runout.errors import InputError
+from runout.learned.files import engine_of, read_plain
+from runout.neural_mpm.engine import ENGINE_NAME, NeuralMPM, NeuralMPMConfig
+
+FORMAT = "runout-neural-mpm-1"
+# Allowed [lowest, highest] of every config field
+CONFIG_LIMITS = {
+    "cell_size": (1e-3, 1e4), "point_spacing": (1e-3, 1e4), "frame_dt": (1e-6, 10.0), "history": (1, 16),
+    "frames_per_call": (1, 64), "material_width": (1, 2), "velocity_scale": (1e-9, 1e3), "pad": (1, 8),
+}
+WHOLE = ("history", "frames_per_call", "material_width", "pad")
+MAX_WIDTH = 1024  # U-Net channels at one level
+
+
+def checkpoint_dict(engine: NeuralMPM, **training_state) -> dict:
+    return {"format": FORMAT, "engine": ENGINE_NAME, "config": engine.config.as_dict(), "model": engine.state_dict(),
+            **({"data_ranges": engine.data_ranges} if engine.data_ranges else {}), **training_state}
+
+
+def save_checkpoint(path: str | Path, engine: NeuralMPM, **training_state) -> Path:
+    path = Path(path)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(checkpoint_dict(engine, **training_state), tmp)
+    os.replace(tmp, path)
+    return path
+
+
+def read_checkpoint(path: str | Path) -> dict:
+    """The checkpoint's contents, checked: a neural-MPM file, its config in range, finite weights."""
+    ckpt = read_plain(path)
+    found = engine_of(ckpt)
+    if found != ENGINE_NAME:
+        raise InputError(f"{path}: holds {'a ' + found if found else 'no'} engine's model where a {ENGINE_NAME} "
+                         "checkpoint was expected.")
+    for key in ("config", "model"):
+        if not isinstance(ckpt.get(key), dict):
+            raise InputError(f"{path}: the checkpoint's '{key}' must be a table of values.")
+    _check_config(ckpt["config"], path)
+    for name, tensor in ckpt["model"].items():
+        if not isinstance(tensor, torch.Tensor) or not bool(torch.isfinite(tensor).all()):
+            raise InputError(f"{path}: the model weight '{name}' is not a finite tensor.")
+    ranges = ckpt.get("data_ranges")
+    if ranges is not None and not isinstance(ranges, dict):
+        raise InputError(f"{path}: the checkpoint's 'data_ranges' must be a table of values.")
+    return ckpt
+
+
+def _check_config(config: dict, path) -> None:
+    known = {f.name for f in fields(NeuralMPMConfig)}
+    unknown = sorted(set(config) - known)
+    if unknown:
+        raise InputError(f"{path}: unknown key '{unknown[0]}' in the checkpoint's config; known keys are "
+                         f"{', '.join(sorted(known))}.")
+    for key, (lo, hi) in CONFIG_LIMITS.items():
+        if key in config:
+            checks.number(config[key], f"config.{key}", path, lo, hi, whole=key in WHOLE)
+    widths = config.get("widths", NeuralMPMConfig.widths)
+    if (not isinstance(widths, (list, tuple)) or not 1 <= len(widths) <= 6
+            or any(isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= MAX_WIDTH for w in widths)):
+        raise InputError(f"{path}: config.widths = {widths!r} must be 1 to 6 whole numbers of channels in [1, {MAX_WIDTH}].")
+
+
+def engine_from_checkpoint(ckpt: dict, source) -> NeuralMPM:
+    engine = NeuralMPM(NeuralMPMConfig.from_dict(ckpt["config"]))
+    try:
+        engine.load_state_dict(ckpt["model"])
+    except (RuntimeError, TypeError, KeyError):
+        raise InputError(f"{source}: the model weights do not match the engine's config.") from None
+    engine.data_ranges = ckpt.get("data_ranges")
+    return engine
+
+
+def load_engine(path: str | Path, device: str | torch.device = "cpu") -> NeuralMPM:
+    """The engine stored in a checkpoint, on `device`, in eval mode."""
+    return engine_from_checkpoint(read_checkpoint(path), path).to(device).eval()
+
