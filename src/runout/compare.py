@@ -61,7 +61,7 @@ def run_compare(
     `frames` frames (None: the scene's) and write the comparison to OUT. `log` gets the line
     saying the scene is refilled, `warn` each value outside the model's training ranges."""
     scene_path, out = Path(scene_path), Path(out)
-    folder = check_folder(out, "compare", COMPARE_FILES + (animation_name(),), force=force)
+    folder = check_folder(out, "compare", COMPARE_FILES + (animation_name(),), force=force, inputs={"the scene": scene_path, "--model": model})
     simulator = load_simulator(model, device)
     scene = at_model_spacing(load_scene(scene_path), simulator, str(scene_path), log)
     scene = _with_frames(scene, frames, simulator.schema, scene_path)

@@ -93,6 +93,7 @@ class OptimiserSpec:
 @dataclass(frozen=True)
 class InverseSpec:
     source: Path
+    scene_path: Path  # the scene file the spec names
     scene: Scene  # with every `fixed` value applied; free values are set per evaluation
     target: TargetSpec
     free: tuple[FreeParameter, ...]
@@ -134,11 +135,13 @@ def spec_from_dict(data: dict, source: Path, digest: str = "") -> InverseSpec:
     check_keys(data, _TOP_KEYS, "top level", source)
     if "scene" not in data or not isinstance(data["scene"], str):
         raise InputError(f"{source}: 'scene' must name a scene file, e.g. scene = \"dam.toml\".")
-    scene = load_scene(_relative(source, data["scene"]))
+    scene_path = _relative(source, data["scene"])
+    scene = load_scene(scene_path)
     fixed, free = _parameters(data.get("parameters", {}), scene, source)
     scene = scene.with_materials(**fixed) if fixed else scene
     return InverseSpec(
         source=source,
+        scene_path=scene_path,
         scene=scene,
         target=_target(data.get("target"), source),
         free=free,
