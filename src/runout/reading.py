@@ -60,7 +60,7 @@ def folder_to_read(path: str | Path, what: str) -> Path:
     if link is not None:
         raise InputError(f"{path}: is {link}; give the {what} itself.")
     if path.exists():
-        raise InputError(f"{path}: is a file; give the {what} itself, a folder.")
+        raise InputError(f"{path}: is a file; give the {what} itself.")
     raise InputError(f"{path}: no such {what}.")
 
 
