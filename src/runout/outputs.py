@@ -23,7 +23,8 @@ of them. Only names the marker lists are ever removed: a user's notes, a scene f
 nested run's folder beside the results stay. A listed folder loses only the files its command
 writes there (INSIDE) and goes once nothing else is left in it; a user's file inside stays. A
 marker or folder from before the marker listed its names is read conservatively: only names
-that command is known to write (KNOWN) are removed. --force names what it removes on stderr before removing it.
+that command is known to write (KNOWN) are removed. --force names what it removes on stderr
+before removing it.
 
 Pictures (`check_picture`) must be named with a .png, .pdf or .svg suffix, so what is
 written is exactly the file named.
@@ -88,7 +89,7 @@ INSIDE = {
     "compare": {"gns": _TRAJECTORY},
     "demo": {"forward": ("metrics.json", "animation.gif", "final.png", *_MPM_CACHE),
              "inverse": ("scene.toml", "spec.toml", "result", "mpm_ad", *_MPM_CACHE)},
-    "generate": {"scenes": ("scene_[0-9]*.toml",), "parts": ("part_[0-9]*.npz", "part_[0-9]*.tmp")},
+    "generate": {"scenes": ("scene_[0-9]*.toml",), "parts": ("part_[0-9]*.npz",)},  # and part_*.tmp.npz, being written
     "train": {"snapshots": ("step-[0-9]*.pt", "step-[0-9]*.pt.tmp"), "tensorboard": ("events.out.tfevents.*",)},
     "invert": {"deposits": ("eval_[0-9]*.npy*",), "start_[0-9][0-9]": _START},
 }
