@@ -55,7 +55,7 @@ def test_rollout_against_a_ground_truth_reports_position_error_and_runout(tmp_pa
 
 
 def test_a_missing_model_is_an_input_error(tmp_path):
-    result = CliRunner().invoke(app, ["rollout", "--model", str(tmp_path / "none.pt"), str(tmp_path), "--out", str(tmp_path / "o")])
+    result = CliRunner().invoke(app, ["rollout", "--model", str(tmp_path / "none.pt"), str(tmp_path / "traj"), "--out", str(tmp_path / "o")])
     assert isinstance(result.exception, InputError)
     assert "none.pt: no such checkpoint file." in str(result.exception)
 

@@ -70,7 +70,7 @@ def test_rollout_over_an_mpm_run_is_refused_then_replaces_it_with_force(tmp_path
     assert run(["mpm", DAM, "--out", out], capsys)[0] == 0
     before = sorted(p.name for p in out.iterdir())
     assert {"initial.png", "final.png", "animation.gif"} <= set(before)
-    argv = ["rollout", "--model", MODEL, out, "--out", out, "--frames", "8", "--no-animation"]
+    argv = ["rollout", "--model", MODEL, DAM, "--out", out, "--frames", "8", "--no-animation"]
     code, err = run(argv, capsys)
     assert code == 2 and "holds the results of `runout mpm`" in err and "--force" in err and one_sentence(err)
     assert sorted(p.name for p in out.iterdir()) == before

@@ -12,7 +12,7 @@ import runout.validate
 from runout.mpm_run import MPM_FILES
 from runout.outputs import MARKER, check_folder, claim
 from runout.validate import CaseResult
-from test_cli_exits import DAM, run
+from test_cli_exits import DAM, one_sentence, run
 from test_outputs import mpm_runs  # noqa: F401  (fixture: a static stand-in for the MPM)
 
 MPM = ["mpm", DAM, "--frames", "5"]
@@ -55,12 +55,13 @@ def test_a_rerun_still_removes_its_own_results_it_does_not_rewrite(tmp_path, cap
     assert written(out) == sorted(MPM_FILES)
 
 
-def test_a_rerun_keeps_the_scene_file_in_the_folder(tmp_path, capsys, mpm_runs):
+def test_a_results_folder_holding_the_scene_is_refused_and_keeps_it(tmp_path, capsys, mpm_runs):
     out = tmp_path / "run"
     assert run([*MPM, "--out", out, "--no-animate"], capsys)[0] == 0
     shutil.copyfile(DAM, out / "my_scene.toml")
-    assert run(["mpm", out / "my_scene.toml", "--frames", "5", "--out", out, "--no-animate"], capsys)[0] == 0
-    assert (out / "my_scene.toml").read_text() == DAM.read_text()
+    code, err = run(["mpm", out / "my_scene.toml", "--frames", "5", "--out", out, "--no-animate", "--force"], capsys)
+    assert code == 2 and f"holds the scene {out / 'my_scene.toml'}" in err and one_sentence(err)
+    assert (out / "my_scene.toml").read_text() == DAM.read_text() and len(mpm_runs) == 1
 
 
 def test_a_rerun_keeps_a_nested_run(tmp_path, capsys, mpm_runs):

@@ -8,7 +8,6 @@ the command line turns into exit 2.
 
 from __future__ import annotations
 
-import json
 import math
 from collections.abc import Iterable
 from pathlib import Path
@@ -17,7 +16,8 @@ import numpy as np
 
 from runout.contract import MAX_RADIUS, FeatureSchema, spacing_for_cells
 from runout.errors import InputError
-from runout.scene.validation import MAX_DOMAIN, MAX_FRAMES
+from runout.reading import read_json
+from runout.scene.validation import MAX_DOMAIN, MAX_FRAMES, SMALLEST_SIZE
 
 MAX_FRAME_DT = 10.0  # s between frames, as a scene's time.frame_dt allows
 MAX_RADIUS_SPACINGS = 10.0  # a connectivity radius of more point spacings gives each point > 300 neighbours
@@ -49,6 +49,9 @@ def number(value, field: str, source, lo: float = -math.inf, hi: float = math.in
         raise InputError(f"{where}{field} = {show(value)} must be a {kind} number in {allowed}.")
     if value < lo or value > hi or (lo_open and value == lo):
         raise InputError(f"{where}{field} = {show(value)} is outside the allowed range {allowed}.")
+    if lo_open and lo == 0 and value < SMALLEST_SIZE:
+        raise InputError(f"{where}{field} = {show(value)} is outside the allowed range {allowed}: a positive size is "
+                         f"at least {SMALLEST_SIZE:.3g}.")
     return value
 
 
@@ -168,12 +171,7 @@ def device(value: str, option: str = "--device", auto: bool = False) -> None:
 def json_table(path: Path, what: str) -> dict:
     """The table a JSON file holds, or InputError naming the file (missing, not JSON, or a
     top level that is not a table)."""
-    if not path.is_file():
-        raise InputError(f"{path}: no such {what}.")
-    try:
-        data = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not valid JSON ({exc}).") from None
+    data = read_json(path, what)
     if not isinstance(data, dict):
         raise InputError(f"{path}: the top level is a {type(data).__name__}; it must be a table of keys.")
     return data

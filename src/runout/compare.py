@@ -67,7 +67,8 @@ def run_compare(
     saying the scene is refilled, `warn` each value outside the model's training ranges;
     engine: the engine asked for (--engine), checked against the file."""
     scene_path, out = Path(scene_path), Path(out)
-    folder = check_folder(out, "compare", COMPARE_FILES + (animation_name(),), force=force)
+    folder = check_folder(out, "compare", COMPARE_FILES + (animation_name(),), force=force,
+                          inputs={"the scene": scene_path, "--model": model})
     engine = load_engine(model, device, expect=engine)
     scene = at_model_spacing(load_scene(scene_path), engine, str(scene_path), log)
     scene = _with_frames(scene, frames, engine, scene_path)

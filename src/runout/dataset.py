@@ -17,6 +17,7 @@ from runout import checks
 from runout.contract import FeatureSchema
 from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
+from runout.reading import folder_to_read
 from runout.simfiles import Simulation, iter_simulations, read_metadata, read_simulations
 from runout.trajectory import Trajectory, trajectory_from_features
 
@@ -62,8 +63,7 @@ def summarize(path: str | Path) -> dict:
     path = Path(path)
     if path.is_file():
         return {"splits": {path.stem: _summarize_split(path)}, "checked": _checked(None, path)}
-    if not path.is_dir():
-        raise InputError(f"{path}: no such dataset directory or file.")
+    folder_to_read(path, "dataset folder or split file")
     files = {name: path / f"{name}.npz" for name in SPLITS if (path / f"{name}.npz").is_file()}
     if not files:
         raise InputError(f"{path}: holds none of {', '.join(f'{n}.npz' for n in SPLITS)}.")

@@ -18,7 +18,6 @@ training data), so a model trained at coarse cells sees graphs like those it was
 from __future__ import annotations
 
 import json
-import shutil
 import time
 from collections.abc import Callable
 from dataclasses import replace
@@ -56,7 +55,7 @@ def run_demo(out: Path, model: Path, examples: Path, quick: bool = False, force:
     for name in (SLOPE, DAM):
         if not (examples / name).is_file():
             raise InputError(f"--examples {examples}: {name} is missing there.")
-    prepare_folder(out, "demo", ("forward", "inverse"), force=force)
+    prepare_folder(out, "demo", ("forward", "inverse"), force=force, inputs={"--model": model, "--examples": examples})
     engine = load_engine(model, "cpu")
     if engine.material_width < 2:
         raise InputError(f"{model}: the demo needs a model with a cohesion input (a fine-tuned slope model).")
@@ -107,13 +106,12 @@ def _inverse(engine, model: Path, scene_path: Path, out: Path, quick: bool, log:
     save_scene(scene, out / "scene.toml")
     target = _mpm_target(scene, out, log)
     spec = _write_spec(out, target.name, scene.materials[FREE_MATERIAL], quick)
-    result_dir = out / "result"
-    shutil.rmtree(result_dir, ignore_errors=True)  # a demo starts afresh (the model may have changed)
+    result_dir = out / "result"  # each inversion starts afresh (force: the model may have changed)
     t0 = time.perf_counter()
     name = engine_label(engine)
     log(f"inverse: L-BFGS-B on c of {FREE_MATERIAL}, one line per {name} rollout with its gradient")
     result = invert(spec, result_dir, engine=engine.name, model=model, starts=INVERSE_STARTS,
-                    log=lambda line: log(f"  {line}"))
+                    log=lambda line: log(f"  {line}"), force=True)
     evaluations = sum(r.evaluations for r in result.starts)
     log(f"inverse: {evaluations} evaluations from {INVERSE_STARTS} starts in {time.perf_counter() - t0:.0f} s")
     for line in summary_lines(result):
@@ -121,10 +119,9 @@ def _inverse(engine, model: Path, scene_path: Path, out: Path, quick: bool, log:
     truth = scene.materials[FREE_MATERIAL].cohesion
     log(f"  true value: c = {truth:g} kPa (the MPM target's)")
     yardstick_dir = out / "mpm_ad"
-    shutil.rmtree(yardstick_dir, ignore_errors=True)
     t0 = time.perf_counter()
     log("yardstick: the same back-calculation through the MPM itself (reverse-mode AD, --engine mpm-ad)")
-    yardstick = invert(spec, yardstick_dir, engine="mpm-ad")
+    yardstick = invert(spec, yardstick_dir, engine="mpm-ad", force=True)
     (found,) = yardstick.best.values
     (learned_found,) = result.best.values
     log(f"  c = {found:.4g} kPa after {yardstick.best.evaluations} evaluations in {time.perf_counter() - t0:.0f} s "

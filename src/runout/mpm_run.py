@@ -31,7 +31,7 @@ def run_mpm(
     if frames is not None:
         sc = sc.with_frames(frames)
     writes = MPM_FILES + (("animation.gif",) if animate else ()) + (("vtk",) if vtk else ())
-    folder = check_folder(out, "mpm", writes, force=force)
+    folder = check_folder(out, "mpm", writes, force=force, inputs={"the scene": scene})
     check_budget([sc], device=device, source=str(scene))
     traj = mpm.simulate([sc], device=device)[0]
     bad = traj.first_nonfinite_frame()

@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from runout.errors import InputError
+from runout.reading import file_to_read
 
 try:  # numpy >= 2
     from numpy._core import multiarray as _multiarray, numeric as _numeric
@@ -56,9 +57,7 @@ class SafeNpz:
     pickle that asks for anything but numpy arrays, or holds a non-numeric array."""
 
     def __init__(self, path: str | Path):
-        self.path = Path(path)
-        if not self.path.is_file():
-            raise InputError(f"{self.path}: no such file.")
+        self.path = file_to_read(path, "npz file")
         if not zipfile.is_zipfile(self.path):
             kind = "a single .npy array" if _is_npy(self.path) else "not a zip archive"
             raise InputError(f"{self.path}: not a readable npz file ({kind}); nothing in it was read.")
@@ -129,9 +128,7 @@ def _is_npy(path: Path) -> bool:
 def read_npy(path: str | Path, what: str) -> np.ndarray:
     """The numeric array of a .npy file, read without pickle; InputError naming the file when
     it is missing, unreadable, an object array or not numeric."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such {what}.")
+    path = file_to_read(path, what)
     try:
         array = np.load(path, allow_pickle=False)
     except (OSError, ValueError, EOFError) as exc:

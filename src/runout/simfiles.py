@@ -23,6 +23,7 @@ from runout.contract import radius_for_spacing, spacing_for_cells
 from runout.defaults import CELL_SIZE, FRAME_DT
 from runout.errors import InputError
 from runout.npz import SafeNpz, numeric
+from runout.reading import file_to_read
 
 REQUIRED_METADATA = (
     "bounds", "default_connectivity_radius", "dim", "sequence_length",
@@ -30,6 +31,7 @@ REQUIRED_METADATA = (
 )
 
 MAX_MATERIAL_WIDTH = 2  # [tan phi, c / 100 kPa]
+MAX_PARTICLE_TYPE = 2**31 - 1  # a type is an index into a model's type table
 
 Simulation = tuple[np.ndarray, np.ndarray, np.ndarray | None]
 
@@ -48,9 +50,7 @@ def iter_simulations(path: str | Path) -> Iterator[Simulation]:
     so a large file never sits in memory whole), with the checks of read_simulations.
     Files are read with runout.npz.SafeNpz: a pickle that asks for more than numpy arrays
     is refused, never run."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such dataset file.")
+    path = file_to_read(path, "dataset file")
     with SafeNpz(path) as archive:
         width = None
         for k, item in enumerate(_items(archive)):
@@ -122,15 +122,26 @@ def check_simulation(path: Path, k: int, item: tuple) -> Simulation:
     if not np.isfinite(positions).all():
         raise InputError(f"{path}: simulation {k} positions contain NaN or infinite values.")
     n = positions.shape[1]
-    ptype = numeric(item[1], f"simulation {k} particle_type", path)
-    if ptype.ndim == 0:
-        ptype = np.full(n, int(ptype), dtype=np.int64)
-    if ptype.shape != (n,):
-        raise InputError(f"{path}: simulation {k} particle_type has shape {ptype.shape}; expected ({n},).")
+    ptype = _particle_types(path, k, numeric(item[1], f"simulation {k} particle_type", path), n)
     material = None
     if len(item) == 3 and item[2] is not None:
         material = _material(path, k, numeric(item[2], f"simulation {k} material", path), n)
     return positions.astype(np.float32), ptype.astype(np.int64), material
+
+
+def _particle_types(path: Path, k: int, ptype: np.ndarray, n: int) -> np.ndarray:
+    """[N] from a scalar or (N,), every type a whole number no larger than MAX_PARTICLE_TYPE
+    (the range of the model's own type table is checked later, runout.checks.particle_types)."""
+    if ptype.ndim == 0:
+        ptype = np.full(n, ptype)
+    if ptype.shape != (n,):
+        raise InputError(f"{path}: simulation {k} particle_type has shape {ptype.shape}; expected ({n},).")
+    with np.errstate(invalid="ignore"):
+        bad = ~((np.abs(ptype) <= MAX_PARTICLE_TYPE) & (ptype == np.round(ptype)))  # NaN fails both
+    if bad.any():
+        value = checks.show(float(ptype[bad][0]))
+        raise InputError(f"{path}: simulation {k} particle_type = {value} must be a whole number in [0, {MAX_PARTICLE_TYPE}].")
+    return ptype
 
 
 def _material(path: Path, k: int, material: np.ndarray, n: int) -> np.ndarray:

@@ -440,6 +440,32 @@ def _check_conflicts(cfg: TrainConfig) -> None:
                          "keeps the radius its checkpoint was trained with; leave --radius out.")
 
 
+RESUME_KEEPS = ("latent", "hidden", "message_passing_steps", "lr_init", "lr_decay_steps")  # network and lr schedule
+
+
+def resumed_settings(cfg: TrainConfig, given: set[str]) -> TrainConfig:
+    """The settings of `runout train --resume`: its checkpoint's network and learning-rate
+    schedule hold (RESUME_KEEPS). An option of `given` (the settings named on the command
+    line) that asks for another value would be ignored or break the exact continuation, so
+    it is refused; a schedule setting left out takes the checkpoint's value, not the default."""
+    path = Path(cfg.out) / CHECKPOINT
+    ckpt = read_checkpoint(path)
+    stored = {**ckpt["network"], **{k: v for k, v in _stored_settings(ckpt).items() if k in RESUME_KEEPS}}
+    asked = {**asdict(cfg.network), "lr_init": cfg.lr_init, "lr_decay_steps": cfg.lr_decay_steps}
+    for name in RESUME_KEEPS:
+        if name in given and name in stored and asked[name] != stored[name]:
+            option = option_name(name)
+            raise InputError(f"{option} {checks.show(asked[name])} differs from the {checks.show(stored[name])} that {path} "
+                             f"was trained with, and --resume continues its network and learning-rate schedule "
+                             f"unchanged; leave {option} out or start a new run in another --out.")
+    schedule = {k: stored[k] for k in ("lr_init", "lr_decay_steps") if k in stored and k not in given}
+    return replace(cfg, **schedule)
+
+
+def _stored_settings(ckpt: dict) -> dict:
+    return ckpt["train"] if isinstance(ckpt.get("train"), dict) else {}
+
+
 def _start(cfg: TrainConfig, meta: dict, data: Simulations):
     """The simulator, training state and settings of a resumed, fine-tuned or new run."""
     out = Path(cfg.out)

@@ -68,7 +68,7 @@ class Study:
             from runout.learned.load import load_engine
 
             load_engine(self.model).check_frames(frames, "--frames")
-        _claim_out(self.out, name, self.force)
+        _claim_out(self.out, name, self.force, {"--model": self.model, "--examples": self.examples})
         return EngineRun(MpmCache(self.cache), self.device, self.progress, log=typer.echo)
 
 
@@ -90,11 +90,11 @@ def study_command(func: Callable) -> Callable:
     return func
 
 
-def _claim_out(out: Path, study: str, force: bool) -> None:
-    """OUT holds one subfolder per study; a study adds or replaces its own."""
+def _claim_out(out: Path, study: str, force: bool, inputs) -> None:
+    """OUT holds one subfolder per study; a study adds or replaces its own. OUT must lie apart from the study's inputs."""
     from runout.outputs import prepare_folder
 
-    prepare_folder(out, "evaluate", (study,), mode="add", force=force)
+    prepare_folder(out, "evaluate", (study,), mode="add", force=force, inputs=inputs)
 
 
 def parse_numbers(text: str, option: str) -> tuple[float, ...]:
@@ -227,7 +227,7 @@ def sensitivity(
     checks.device(device)
     cfg = SensitivityConfig(data, init, parse_sizes(sizes), steps, epochs, held_out, split, device=device, progress=progress,
                             budgets=tuple(b.strip() for b in budgets.split(",") if b.strip()))
-    _claim_out(out, "sensitivity", force)
+    _claim_out(out, "sensitivity", force, {"--data": data, "--init": init})
     s = run_sensitivity(cfg, out)
     for r in s["results"]:
         typer.echo(f"{r['budget']:>6} N = {r['size']:>5}: median rollout MSE {r['median_mse_m2']:.4g} m² "

@@ -16,11 +16,13 @@ from runout.scene.validation import MAX_FRAMES
 from runout.train_settings import TrainConfig, option_name
 
 MAX_STOP_SPEED = 100.0  # m/s
+SETTING_OF_PARAMETER = {"lr": "lr_init", "message_passing": "message_passing_steps"}  # `train` parameters named apart from their setting
 
 
 # Defaults are TrainConfig's and NetworkConfig's fields; limits are runout.train.SETTING_LIMITS (check_settings).
 @app.command()
 def train(
+    ctx: typer.Context,
     data: Path = typer.Option(..., "--data", help="Dataset folder with train.npz, metadata.json (and valid.npz for validation rollouts)."),
     out: Path = typer.Option(..., "--out", help="Run folder: checkpoint.pt, best.pt, log.jsonl (and tensorboard/ if installed)."),
     steps: int = typer.Option(TrainConfig.steps, "--steps", help="Train until the step counter reaches this value."),
@@ -65,7 +67,8 @@ def train(
     the checkpoint of the last whole step (exit 130); --resume continues exactly."""
     from runout import checks
     from runout.outputs import check_folder, claim
-    from runout.train import BEST, CHECKPOINT, LOG, SNAPSHOTS, check_settings, train as run_training
+    from runout.reading import folder_to_read
+    from runout.train import BEST, CHECKPOINT, LOG, SNAPSHOTS, check_settings, resumed_settings, train as run_training
     from runout.train_settings import parse_onset_schedule
 
     cfg = TrainConfig(
@@ -82,7 +85,12 @@ def train(
     )
     check_settings(cfg)
     checks.device(device, auto=True)
-    folder = check_folder(out, "train", (CHECKPOINT, BEST, LOG, SNAPSHOTS, "tensorboard"), mode="resume", force=force)
+    given = {SETTING_OF_PARAMETER.get(name, name) for name in ctx.params if _given(ctx, name)}
+    folder_to_read(data, "dataset folder")
+    folder = check_folder(out, "train", (CHECKPOINT, BEST, LOG, SNAPSHOTS, "tensorboard"), mode="resume", force=force,
+                          inputs={"--data": data, "--init": init})
+    if resume:
+        cfg = resumed_settings(cfg, given)
     if int(os.environ.get("RANK", "0")) == 0:  # under torchrun only the writing process prepares it
         claim(folder)
     run_training(cfg)
@@ -117,7 +125,7 @@ def rollout(
     check_range("--stop-speed", stop_speed, 0.0, MAX_STOP_SPEED, " m/s")
     checks.device(device)
     writes = ROLLOUT_FILES + ((animation_name(),) if animation else ()) + (("vtk",) if vtk else ())
-    folder = check_folder(out, "rollout", writes, force=force)
+    folder = check_folder(out, "rollout", writes, force=force, inputs={"--model": model, "the source": source})
     engine = load_engine(model, device, expect=engine_name)
     begin = initial_state(source, split, index, engine, log=lambda line: typer.echo(line, err=True))
     initial, truth = begin.initial, begin.truth
@@ -143,6 +151,11 @@ def rollout(
 
         metrics["vtk"] = str(write_vtk(predicted, out / "vtk"))
     typer.echo(json.dumps(metrics, indent=2))
+
+
+def _given(ctx: typer.Context, name: str) -> bool:
+    """Whether the command line (or the environment) set parameter `name`, rather than its default."""
+    return getattr(ctx.get_parameter_source(name), "name", "DEFAULT") != "DEFAULT"
 
 
 def check_range(option: str, value, lo, hi, unit: str = "", lo_open: bool = False) -> None:

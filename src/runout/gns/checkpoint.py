@@ -28,6 +28,7 @@ import torch
 from runout import checks
 from runout.contract import MAX_RADIUS, MAX_STEPS, FeatureSchema  # noqa: F401  (MAX_STEPS re-exported)
 from runout.errors import InputError
+from runout.scene.validation import MAX_DOMAIN
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.learned.files import GNS_FORMAT, read_plain
 
@@ -91,16 +92,40 @@ def check_contents(ckpt: dict, path) -> None:
     problem = Normalisation.problem(ckpt["stats"])
     if problem:
         raise InputError(f"{path}: stats.{problem}.")
-    ranges = ckpt.get("data_ranges")
-    if ranges is not None:
-        _check_is_table(ranges, "data_ranges", path)
-    spacing = (ranges or {}).get("point_spacing_m")
-    if spacing is not None:
-        checks.number(spacing, "data_ranges.point_spacing_m", path, 0.0, MAX_RADIUS, " m", lo_open=True)
+    if ckpt.get("data_ranges") is not None:
+        _check_data_ranges(ckpt["data_ranges"], path)
     _check_weights(ckpt["model"], path)
     if "train_model" in ckpt:  # a run that saves a weight average (--ema) keeps its last step's weights here
         _check_weights(ckpt["train_model"], path, "train_model")
     _check_training_state(ckpt, path)
+
+
+# data_ranges (runout.gns.training_range): key -> (lowest, highest, unit, whole numbers, rising) of each pair
+_RANGE_PAIRS = {
+    "friction_angle_deg": (0.0, 90.0, " degrees", False, True), "cohesion_kpa": (0.0, math.inf, " kPa", False, True),
+    "domain_m": (0.0, MAX_DOMAIN, " m", False, False), "materials_per_scene": (0, 10_000, "", True, True),
+}
+
+
+def _check_data_ranges(ranges, path) -> None:
+    """What the model was trained on: [lo, hi] pairs in range (or none), a positive point
+    spacing and a text source, so the range warnings can compare against them."""
+    _check_is_table(ranges, "data_ranges", path)
+    _check_table(ranges, {*_RANGE_PAIRS, "point_spacing_m", "source"}, "data_ranges", path)
+    for key, (lo, hi, unit, whole, rising) in _RANGE_PAIRS.items():
+        pair = ranges.get(key)
+        if pair is None:
+            continue
+        field = f"data_ranges.{key}"
+        if not isinstance(pair, (list, tuple)) or len(pair) != 2:
+            raise InputError(f"{path}: {field} = {checks.show(pair)} must be a pair [lowest, highest]{unit}.")
+        low, high = (checks.number(v, f"{field}[{k}]", path, lo, hi, unit, whole=whole) for k, v in enumerate(pair))
+        if rising and low > high:
+            raise InputError(f"{path}: {field} = {checks.show(list(pair))} must rise from the lowest to the highest value.")
+    if ranges.get("point_spacing_m") is not None:
+        checks.number(ranges["point_spacing_m"], "data_ranges.point_spacing_m", path, 0.0, MAX_RADIUS, " m", lo_open=True)
+    if not isinstance(ranges.get("source", ""), str):
+        raise InputError(f"{path}: data_ranges.source = {checks.show(ranges['source'])} must be text.")
 
 
 def _check_is_table(value, key: str, path) -> None:

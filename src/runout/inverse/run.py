@@ -67,7 +67,9 @@ def invert(
     check_step(fd_step)
     spec = load_inverse_spec(spec_path)
     chosen = check_iterations(plot_iterations, spec.optimiser.max_iterations)
-    folder = check_folder(out_dir, "invert", _writes(starts), mode="resume", force=force)
+    inputs = {"the spec": spec_path, "its scene": spec.scene_path, "its target": spec.target.trajectory or spec.target.positions,
+              "--model": model}
+    folder = check_folder(out_dir, "invert", _writes(starts), mode="resume", force=force, inputs=inputs)
     learned, filled = None, "the scene"
     if engine is None or engine in LEARNED:
         learned = _learned_engine(model, device, engine)

@@ -11,12 +11,13 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import tomllib
 from dataclasses import dataclass, replace
 from pathlib import Path
 
 from runout.errors import InputError
+from runout.reading import read_toml
 from runout.scene import MAX_STRENGTH, Scene, load_scene
+from runout.scene.validation import SMALLEST_SIZE
 from runout.scene.files import check_keys
 
 
@@ -92,6 +93,7 @@ class OptimiserSpec:
 @dataclass(frozen=True)
 class InverseSpec:
     source: Path
+    scene_path: Path  # the scene file the spec names
     scene: Scene  # with every `fixed` value applied; free values are set per evaluation
     target: TargetSpec
     free: tuple[FreeParameter, ...]
@@ -118,13 +120,7 @@ class InverseSpec:
 def load_inverse_spec(path: str | Path) -> InverseSpec:
     """Read and check an inverse spec file; raise InputError with one sentence on any fault."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such inverse spec file.")
-    text = path.read_text()
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise InputError(f"{path}: not a valid TOML file ({exc}).") from None
+    data = read_toml(path, "inverse spec file")
     return spec_from_dict(data, path, problem_digest(data))
 
 
@@ -139,11 +135,13 @@ def spec_from_dict(data: dict, source: Path, digest: str = "") -> InverseSpec:
     check_keys(data, _TOP_KEYS, "top level", source)
     if "scene" not in data or not isinstance(data["scene"], str):
         raise InputError(f"{source}: 'scene' must name a scene file, e.g. scene = \"dam.toml\".")
-    scene = load_scene(_relative(source, data["scene"]))
+    scene_path = _relative(source, data["scene"])
+    scene = load_scene(scene_path)
     fixed, free = _parameters(data.get("parameters", {}), scene, source)
     scene = scene.with_materials(**fixed) if fixed else scene
     return InverseSpec(
         source=source,
+        scene_path=scene_path,
         scene=scene,
         target=_target(data.get("target"), source),
         free=free,
@@ -307,7 +305,7 @@ def _loss(table, source: Path) -> LossSpec:
         spec = replace(spec, front_weight=w)
     if "bin_width" in table:
         b = _number(table, "bin_width", "loss", source)
-        if not 0 < b <= 1000:
+        if not SMALLEST_SIZE <= b <= 1000:  # a subnormal width would make the bins overflow
             raise InputError(f"{source}: loss.bin_width = {b:g} m is outside the allowed range (0, 1000] m.")
         spec = replace(spec, bin_width=b)
     return spec

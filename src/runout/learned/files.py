@@ -17,17 +17,14 @@ from pathlib import Path
 import torch
 
 from runout.errors import InputError
+from runout.reading import file_to_read
 
 GNS_FORMAT = "runout-gns-1"
 
 
 def read_plain(path: str | Path) -> object:
     """The file's contents (tensors on the CPU); InputError for a missing, unreadable or unsafe file."""
-    path = Path(path)
-    if path.is_dir():
-        raise InputError(f"{path}: is a folder, not a checkpoint file.")
-    if not path.is_file():
-        raise InputError(f"{path}: no such checkpoint file.")
+    path = file_to_read(path, "checkpoint file")
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # torch warns about pickle protocols of foreign files

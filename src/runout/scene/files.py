@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from dataclasses import asdict
 from pathlib import Path
 
 from runout.defaults import FLIP_WAVE, ROUGH
 from runout.errors import InputError
+from runout.reading import read_json, read_toml
 from runout.scene.model import Domain, Material, Region, Scene, TimeSpec
 from runout.scene.validation import validate_scene
 
@@ -148,7 +148,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
                 f"{source}: {where}.polygon must be a list of at least 3 [x, y] pairs of numbers (m)."
             )
         vel = r.get("velocity", [0.0, 0.0])
-        if not (isinstance(vel, list) and len(vel) == 2 and all(isinstance(v, (int, float)) for v in vel)):
+        if not (isinstance(vel, list) and len(vel) == 2 and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in vel)):
             raise InputError(f"{source}: {where}.velocity must be a pair [vx, vy] of numbers (m/s).")
         fixed = r.get("fixed", False)
         if not isinstance(fixed, bool):
@@ -169,15 +169,8 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
 def load_scene(path: str | Path) -> Scene:
     """Read a TOML (or JSON) scene file; raise InputError naming what is wrong."""
     path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such scene file.")
-    try:
-        if path.suffix.lower() == ".json":
-            data = json.loads(path.read_text())
-        else:
-            data = tomllib.loads(path.read_text())
-    except (tomllib.TOMLDecodeError, json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise InputError(f"{path}: not a valid TOML/JSON scene file ({exc}).") from None
+    read = read_json if path.suffix.lower() == ".json" else read_toml
+    data = read(path, "scene file")
     check_keys(data, _TOP_KEYS, "top level", path)
     return scene_from_dict({"name": path.stem, **data}, str(path))
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import sys
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -19,23 +20,35 @@ if TYPE_CHECKING:
 MAX_DOMAIN = 20_000.0  # m, width and height
 MAX_LATTICE_POINTS = 2_000_000  # candidate points (domain / point spacing, both ways)
 MAX_FRAMES = 1_000_000
-MAX_SPEED = 100.0  # m/s, each component of an initial velocity (fast rock avalanches)
+MAX_SPEED = 100.0  # m/s, the speed (length of the vector) of an initial velocity (fast rock avalanches)
 MAX_YOUNGS_MODULUS = 1e5  # MPa (100 GPa, stiffer than intact granite)
 MAX_STRENGTH = 1e4  # kPa, cohesion and tension cut-off (10 MPa, soft rock)
 MAX_DENSITY = 1e4  # kg/m^3
+SMALLEST_SIZE = sys.float_info.min  # 2.2e-308: below it a float is subnormal and a size divided by it overflows
 
 
 def _in_range(value, lo, hi, key, where, source, unit="", lo_open=False, hi_open=False) -> None:
     bad_lo = value <= lo if lo_open else value < lo
     bad_hi = value >= hi if hi_open else value > hi
-    if bad_lo or bad_hi:
+    subnormal = lo_open and lo == 0 and 0 < value < SMALLEST_SIZE
+    if bad_lo or bad_hi or subnormal:
         left = "(" if lo_open else "["
         right = ")" if hi_open else "]"
         hi_txt = "inf" if hi == math.inf else f"{hi:g}"
+        note = f" (a positive size is at least {SMALLEST_SIZE:.3g})" if subnormal else ""
         raise InputError(
             f"{source}: {where}.{key} = {value:g} is outside the allowed range "
-            f"{left}{lo:g}, {hi_txt}{right}{unit}."
+            f"{left}{lo:g}, {hi_txt}{right}{unit}{note}."
         )
+
+
+def _check_speed(velocity, where: str, source) -> None:
+    """The start speed, the length of the velocity vector, is at most MAX_SPEED."""
+    speed = math.hypot(*velocity)
+    if not speed <= MAX_SPEED:  # a NaN fails too
+        shown = ", ".join(f"{v:g}" for v in velocity)
+        raise InputError(f"{source}: {where}.velocity = [{shown}] m/s has a speed of {speed:g} m/s, outside the "
+                         f"allowed range [0, {MAX_SPEED:g}] m/s.")
 
 
 def validate_scene(scene: Scene, source: str = "<scene>") -> None:
@@ -45,7 +58,7 @@ def validate_scene(scene: Scene, source: str = "<scene>") -> None:
     _in_range(d.height, 0, MAX_DOMAIN, "height", "domain", source, " m", lo_open=True)
     _in_range(d.cell_size, 0, min(d.width, d.height) / 2, "cell_size", "domain", source, " m", lo_open=True)
     _in_range(d.points_per_cell, 1, 6, "points_per_cell", "domain", source)
-    candidates = round(d.width / d.point_spacing) * round(d.height / d.point_spacing)
+    candidates = np.round(d.width / d.point_spacing) * np.round(d.height / d.point_spacing)  # float: inf when huge
     if candidates > MAX_LATTICE_POINTS:
         raise InputError(
             f"{source}: the domain {d.width:g} x {d.height:g} m at {d.point_spacing:g} m point spacing has "
@@ -80,12 +93,7 @@ def validate_scene(scene: Scene, source: str = "<scene>") -> None:
                 f"{source}: {where}.material = '{r.material}' is not defined; defined materials are "
                 f"{', '.join(scene.materials)}."
             )
-        for axis, v in zip("xy", r.velocity):
-            if not math.isfinite(v) or abs(v) > MAX_SPEED:
-                raise InputError(
-                    f"{source}: {where}.velocity {axis} = {v:g} is outside the allowed range "
-                    f"[-{MAX_SPEED:g}, {MAX_SPEED:g}] m/s."
-                )
+        _check_speed(r.velocity, where, source)
         p = np.asarray(r.polygon, dtype=float)
         for x, y in p:
             if not (0.0 <= x <= d.width and 0.0 <= y <= d.height):
