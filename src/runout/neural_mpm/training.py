@@ -17,7 +17,7 @@ import json
 import math
 import signal
 import time
-from dataclasses import asdict, dataclass, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -84,71 +84,112 @@ class RunLog:
 
 
 def train(settings: TrainSettings, config: NeuralMPMConfig | None = None, resume: bool = False) -> NeuralMPM:
-    """Train (or resume) the run in settings.out; returns the engine at the last step."""
+    """Train (or resume) the run in settings.out; returns the engine at the last step. The
+    run ends validated and saved, whatever ends it (steps, time, a signal)."""
     torch.set_num_threads(settings.threads)
-    out = Path(settings.out)
-    out.mkdir(parents=True, exist_ok=True)
-    state = read_checkpoint(out / CHECKPOINT) if resume and (out / CHECKPOINT).is_file() else None
-    config = NeuralMPMConfig.from_dict(state["config"]) if state is not None else config or NeuralMPMConfig()
-    sampler = WindowSampler.from_split(settings.data, "train", config.history, config.material_width)
-    if config.velocity_scale <= 0:  # a new run: the unit of velocity from its data
-        config = replace(config, velocity_scale=sampler.velocity_statistics()["scale"])
-    with torch.random.fork_rng():  # the initial weights follow the run's seed
-        torch.manual_seed(settings.seed)
-        engine = NeuralMPM(config)
-    optimizer = torch.optim.Adam(engine.parameters(), lr=settings.lr)
-    start, cpu_before, best = 0, 0.0, math.inf
-    engine.data_ranges = _ranges(settings, sampler) if state is None else state.get("data_ranges")
-    if state is not None:
-        engine.load_state_dict(state["model"])
-        optimizer.load_state_dict(state["optimizer"])
-        start, cpu_before, best = state["step"], state["cpu_seconds"], state["best"]
-    log = RunLog(out)
-    log.write(event="start", step=start, config=config.as_dict(), settings=asdict(settings),
-              parameters=sum(p.numel() for p in engine.parameters()), train_scenes=len(sampler))
-    truths = _heldout(settings)
+    run = Run.start(settings, config, resume)
     stop = _StopOnSignal()
-    t_wall, t_cpu = time.monotonic(), time.process_time()
-    cpu_used = lambda: cpu_before + time.process_time() - t_cpu  # noqa: E731
-    span = settings.calls * config.frames_per_call
-    losses: list[float] = []
-    step = start
-    bar = tqdm(total=settings.steps, initial=start, disable=not settings.progress, desc="neural MPM", unit="step")
-    t_log = time.monotonic()
-    while step < settings.steps:
-        lr = learning_rate(step, settings)
-        for group in optimizer.param_groups:
+    bar = tqdm(total=settings.steps, initial=run.step, disable=not settings.progress, desc="neural MPM", unit="step")
+    try:
+        while run.step < settings.steps:
+            run.take_step()
+            bar.update(1)
+            ending = run.out_of_time() or stop.asked or run.step == settings.steps
+            if run.truths and (run.step % settings.valid_every == 0 or ending):
+                run.validate()
+            if run.step % settings.save_every == 0 or ending:
+                run.save(CHECKPOINT)
+            if ending:
+                reason = "steps" if run.step == settings.steps else "signal" if stop.asked else "time"
+                run.log.write(event="stop", step=run.step, reason=reason, cpu_hours=run.cpu_used() / 3600)
+                break
+    finally:
+        bar.close()
+        stop.restore()
+    return run.engine
+
+
+@dataclass
+class Run:
+    """A training run's state between steps: the engine, Adam, the data, the held-out scenes,
+    the best held-out error so far and the CPU time used (s, over every session of the run)."""
+
+    settings: TrainSettings
+    engine: NeuralMPM
+    optimizer: torch.optim.Optimizer
+    sampler: WindowSampler
+    truths: list
+    log: "RunLog"
+    step: int = 0
+    best: float = math.inf
+    cpu_before: float = 0.0
+    losses: list = field(default_factory=list)
+
+    def __post_init__(self):
+        self._t_wall, self._t_cpu, self._t_log = time.monotonic(), time.process_time(), time.monotonic()
+
+    @classmethod
+    def start(cls, settings: TrainSettings, config: NeuralMPMConfig | None, resume: bool) -> "Run":
+        out = Path(settings.out)
+        out.mkdir(parents=True, exist_ok=True)
+        state = read_checkpoint(out / CHECKPOINT) if resume and (out / CHECKPOINT).is_file() else None
+        config = NeuralMPMConfig.from_dict(state["config"]) if state is not None else config or NeuralMPMConfig()
+        sampler = WindowSampler.from_split(settings.data, "train", config.history, config.material_width)
+        if config.velocity_scale <= 0:  # a new run: the unit of velocity from its data
+            config = replace(config, velocity_scale=sampler.velocity_statistics()["scale"])
+        with torch.random.fork_rng():  # the initial weights follow the run's seed
+            torch.manual_seed(settings.seed)
+            engine = NeuralMPM(config)
+        optimizer = torch.optim.Adam(engine.parameters(), lr=settings.lr)
+        engine.data_ranges = _ranges(settings, sampler) if state is None else state.get("data_ranges")
+        run = cls(settings, engine, optimizer, sampler, _heldout(settings), RunLog(out))
+        if state is not None:
+            engine.load_state_dict(state["model"])
+            optimizer.load_state_dict(state["optimizer"])
+            run.step, run.cpu_before, run.best = state["step"], state["cpu_seconds"], state["best"]
+        run.log.write(event="start", step=run.step, config=config.as_dict(), settings=asdict(settings),
+                      parameters=sum(p.numel() for p in engine.parameters()), train_scenes=len(sampler))
+        return run
+
+    def cpu_used(self) -> float:
+        return self.cpu_before + time.process_time() - self._t_cpu
+
+    def out_of_time(self) -> bool:
+        s = self.settings
+        return (s.max_hours is not None and time.monotonic() - self._t_wall > s.max_hours * 3600
+                or s.max_cpu_hours is not None and self.cpu_used() > s.max_cpu_hours * 3600)
+
+    def take_step(self) -> None:
+        s = self.settings
+        lr = learning_rate(self.step, s)
+        for group in self.optimizer.param_groups:
             group["lr"] = lr
-        generator = torch.Generator().manual_seed(settings.seed * 1_000_003 + step)
-        window = sampler.draw(settings.batch_size, span, settings.rest_share, settings.mirror_share, generator)
-        loss = window_loss(engine, window, settings.calls)
-        optimizer.zero_grad(set_to_none=True)
+        generator = torch.Generator().manual_seed(s.seed * 1_000_003 + self.step)
+        span = s.calls * self.engine.config.frames_per_call
+        window = self.sampler.draw(s.batch_size, span, s.rest_share, s.mirror_share, generator)
+        loss = window_loss(self.engine, window, s.calls)
+        self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
-        optimizer.step()
-        losses.append(loss.item())
-        step += 1
-        bar.update(1)
-        if step % settings.log_every == 0:
+        self.optimizer.step()
+        self.losses.append(loss.item())
+        self.step += 1
+        if self.step % s.log_every == 0:
             now = time.monotonic()
-            log.write(event="loss", step=step, loss=float(np.mean(losses)), lr=lr,
-                      steps_per_s=settings.log_every / (now - t_log), cpu_hours=cpu_used() / 3600)
-            losses, t_log = [], now
-        if truths and (step % settings.valid_every == 0 or step == settings.steps):
-            result = evaluate(engine, truths)
-            log.write(event="valid", step=step, cpu_hours=cpu_used() / 3600, **_headline(result))
-            if result["position_error_m"] < best:
-                best = result["position_error_m"]
-                save_checkpoint(out / BEST, engine, **training_state(optimizer, step, cpu_used(), best, settings))
-        out_of_time = (settings.max_hours is not None and time.monotonic() - t_wall > settings.max_hours * 3600
-                       or settings.max_cpu_hours is not None and cpu_used() > settings.max_cpu_hours * 3600)
-        if step % settings.save_every == 0 or out_of_time or stop.asked or step == settings.steps:
-            save_checkpoint(out / CHECKPOINT, engine, **training_state(optimizer, step, cpu_used(), best, settings))
-        if out_of_time or stop.asked:
-            log.write(event="stop", step=step, reason="time" if out_of_time else "signal", cpu_hours=cpu_used() / 3600)
-            break
-    bar.close()
-    stop.restore()
-    return engine
+            self.log.write(event="loss", step=self.step, loss=float(np.mean(self.losses)), lr=lr,
+                           steps_per_s=s.log_every / (now - self._t_log), cpu_hours=self.cpu_used() / 3600)
+            self.losses, self._t_log = [], now
+
+    def validate(self) -> None:
+        """The held-out scenes from rest; best.pt keeps the best so far."""
+        result = evaluate(self.engine, self.truths)
+        self.log.write(event="valid", step=self.step, cpu_hours=self.cpu_used() / 3600, **_headline(result))
+        if result["position_error_m"] < self.best:
+            self.best = result["position_error_m"]
+            self.save(BEST)
+
+    def save(self, name: str) -> None:
+        state = training_state(self.optimizer, self.step, self.cpu_used(), self.best, self.settings)
+        save_checkpoint(Path(self.settings.out) / name, self.engine, **state)
 
 
 def _ranges(settings: TrainSettings, sampler: WindowSampler) -> dict:
