@@ -10,7 +10,7 @@ measured for its model card (models/README.md).
    reflected left-right as well (a model that learned the physics, not the side the training
    slopes face, scores them alike).
 2. A column collapse (examples/column_a1.toml: 150 x 150 m, phi 22.5 deg, c 25 kPa) filled
-   at the model's point spacing, run by the MPM and by the GNS from rest for --frames
+   at the model's point spacing, run by the MPM and by the engine from rest for --frames
    frames: normalised runout of each and their difference; column.png shows both.
 3. With --log, the training and validation curves of the run (OUT/curves.png).
 Writes OUT/metrics.json (and the pictures) and prints the metrics.
@@ -75,6 +75,7 @@ def curves(log: Path, path: Path) -> dict:
 
 
 def column(engine, scene_path: Path, frames: int, out: Path) -> dict:
+    from runout.learned.engine import engine_label
     from runout.learned.scenes import at_model_spacing, scene_at_rest
     from runout.metrics import normalised_extent
     from runout.mpm import simulate
@@ -86,17 +87,17 @@ def column(engine, scene_path: Path, frames: int, out: Path) -> dict:
     truth = simulate([scene], device="cpu", progress=False)[0]
     mpm_s = time.perf_counter() - t0
     predicted = engine.rollout_trajectory(scene_at_rest(scene), frames, stop_speed=None)
-    mpm_ln, gns_ln = normalised_extent(truth), normalised_extent(predicted)
-    _draw(truth, predicted, out / "column.png")
+    mpm_ln, engine_ln = normalised_extent(truth), normalised_extent(predicted)
+    _draw(truth, predicted, out / "column.png", engine_label(engine))
     return {"scene": scene_path.name, "cell_size_m": scene.domain.cell_size, "points": truth.n_points, "frames": frames,
-            "mpm_normalised_runout": mpm_ln, "gns_normalised_runout": gns_ln,
-            "relative_error": (gns_ln - mpm_ln) / mpm_ln if mpm_ln else None, "mpm_wall_s": round(mpm_s, 1)}
+            "mpm_normalised_runout": mpm_ln, "engine": engine.name, "engine_normalised_runout": engine_ln,
+            "relative_error": (engine_ln - mpm_ln) / mpm_ln if mpm_ln else None, "mpm_wall_s": round(mpm_s, 1)}
 
 
-def _draw(truth, predicted, path: Path) -> None:
+def _draw(truth, predicted, path: Path, label: str) -> None:
     from runout.plots import save_comparison
 
-    save_comparison(truth, predicted, path, (truth.n_frames - 1, predicted.n_frames - 1), ("MPM, last frame", "GNS, last frame"))
+    save_comparison(truth, predicted, path, (truth.n_frames - 1, predicted.n_frames - 1), ("MPM, last frame", f"{label}, last frame"))
 
 
 def main() -> None:
