@@ -24,7 +24,7 @@ def demo(
 ) -> None:
     """What runout computes right, then what a learned engine makes of it: the MPM's forward
     runout of the paper's four-layer slope and its back-calculation of a dam's soil strength,
-    then the learned engine's, each with its measured error (about 2 minutes on 2 CPU cores)."""
+    then the learned engine's, each with its measured error (a few minutes on a CPU)."""
     from runout.demo import run_demo
     from runout.shipped import shipped_model
 
