@@ -81,6 +81,8 @@ def test_quick_demo_leads_with_the_mpm_and_prints_its_pictures_last(tmp_path):
     assert steps[1].startswith("2. MPM (reverse-mode AD) back-calculation")
     assert steps[2].startswith("3. GNS forward runout") and "1080 points at 10 m cells" in steps[2]  # the model's spacing
     assert steps[3].startswith("4. GNS back-calculation") and "from 2 starts" in steps[3]
+    assert "outside the model's training ranges" in steps[3]  # the dam's phi = 0 shell, which no training scene had
+    assert "outside" not in steps[1]  # the MPM has no training ranges
     for step in steps:  # each step's error line follows it
         error = lines[lines.index(step) + 1]
         assert error.startswith("   ") and " %" in error, error

@@ -31,6 +31,7 @@ from runout.inverse import invert
 from runout.learned.engine import engine_label
 from runout.learned.load import load_engine
 from runout.learned.scenes import at_model_spacing, scene_at_rest
+from runout.learned.training_range import range_warnings
 from runout.metrics import at_common_times, mound_axis, side_runouts
 from runout.mpm.cache import MpmCache
 from runout.outputs import prepare_folder
@@ -108,8 +109,9 @@ def _learned_forward(engine, scene: Scene, cache: MpmCache, out: Path, quick: bo
     traj = engine.rollout_trajectory(scene_at_rest(scene), truth.n_frames, stop_speed=None)  # every frame the MPM has
     name = engine_label(engine)
     traj.name = f"{scene.name} ({name})"
+    outside = _outside_training(len(range_warnings(engine, traj)))
     log(f"3. {name} forward runout of {scene.name} from rest: {traj.n_points} points at "
-        f"{scene.domain.cell_size:g} m cells, {_flow_seconds(traj):.1f} s of flow, in {time.perf_counter() - t0:.0f} s")
+        f"{scene.domain.cell_size:g} m cells, {_flow_seconds(traj):.1f} s of flow, in {time.perf_counter() - t0:.0f} s{outside}")
     metrics = comparison_metrics(truth, traj, scene.domain.cell_size)
     left, right = metrics["runout_left_m"], metrics["runout_right_m"]
     log(f"   outermost points {left['predicted']:.1f} m left and {right['predicted']:.1f} m right of the axis, the MPM's "
@@ -134,12 +136,13 @@ def _back_calculation(scene: Scene, cache: MpmCache, out: Path, quick: bool, log
     spec = _write_spec(out, target, scene.materials[FREE_MATERIAL], quick, learned=model is not None)
     starts = 1 if model is None else INVERSE_STARTS
     t0 = time.perf_counter()
-    result = invert(spec, out / "inverse", engine=engine, model=model, starts=starts, force=True)
+    warnings: list[str] = []  # values outside a learned engine's training ranges: counted, not listed
+    result = invert(spec, out / "inverse", engine=engine, model=model, starts=starts, force=True, warn=warnings.append)
     evaluations = sum(r.evaluations for r in result.starts)
     step = "4" if model is not None else "2"
     log(f"{step}. {name} back-calculation of c of the small dam's {FREE_MATERIAL} from the MPM's deposit "
         f"({scene.domain.cell_size:g} m cells): {evaluations} evaluation{'s' * (evaluations != 1)}"
-        f"{f' from {starts} starts' if starts > 1 else ''} in {time.perf_counter() - t0:.0f} s")
+        f"{f' from {starts} starts' if starts > 1 else ''} in {time.perf_counter() - t0:.0f} s{_outside_training(len(warnings))}")
     truth = scene.materials[FREE_MATERIAL].cohesion
     (found,) = result.best.values
     log(f"   c = {found:.2f} kPa for a true {truth:g} kPa ({_percent(found, truth, digits=2)})")
@@ -150,6 +153,14 @@ def _back_calculation(scene: Scene, cache: MpmCache, out: Path, quick: bool, log
 
 def _mpm(cache: MpmCache, scene: Scene) -> Trajectory:
     return cache.load(scene, progress=False)
+
+
+def _outside_training(count: int) -> str:
+    """The words for `count` values (of a scene, or search bounds) outside the learned engine's
+    training ranges."""
+    if not count:
+        return ""
+    return f"; {count} values outside the model's training ranges (runout rollout and invert name them)"
 
 
 def _flow_seconds(traj: Trajectory) -> float:
