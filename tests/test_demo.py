@@ -77,15 +77,15 @@ def test_quick_demo_leads_with_the_mpm_and_prints_its_pictures_last(tmp_path):
     lines = result.output.splitlines()
     steps = [line for line in lines if line[:2] in ("1.", "2.", "3.", "4.")]
     assert [s[:2] for s in steps] == ["1.", "2.", "3.", "4."]  # the MPM's two answers first, then the learned engine's
-    assert steps[0].startswith("1. MPM forward runout") and "6750 points at 4 m cells" in steps[0]  # the scene's own cells
-    assert steps[1].startswith("2. MPM (reverse-mode AD) back-calculation")
-    assert steps[2].startswith("3. GNS forward runout") and "1080 points at 10 m cells" in steps[2]  # the model's spacing
+    assert steps[0].startswith("1. MPM forward runout") and "at its 4 m cells" in steps[0]  # the scene's own cells
+    assert steps[1].startswith("2. MPM (reverse-mode AD) back-calculation") and "at 10 m cells" in steps[1]
+    assert steps[2].startswith("3. GNS forward runout") and "at its 10 m cells" in steps[2]  # the model's spacing
     assert steps[3].startswith("4. GNS back-calculation") and "from 2 starts" in steps[3]
-    assert "outside the model's training ranges" in steps[3]  # the dam's phi = 0 shell, which no training scene had
-    assert "outside" not in steps[1]  # the MPM has no training ranges
-    for step in steps:  # each step's error line follows it
-        error = lines[lines.index(step) + 1]
-        assert error.startswith("   ") and " %" in error, error
+    errors = [lines[lines.index(step) + 1] for step in steps]  # each step's error line follows it
+    assert all(error.startswith("   ") and " %" in error for error in errors), errors
+    assert "(6750 points)" in errors[0]
+    assert "outside the model's training ranges" in errors[3]  # the dam's phi = 0 shell, which no training scene had
+    assert "outside" not in errors[1]  # the MPM has no training ranges
 
     metrics = json.loads((out / "3_slope_learned" / "metrics.json").read_text())  # the GNS beside the MPM of the same points
     left = metrics["runout_left_m"]
@@ -107,6 +107,7 @@ def test_quick_demo_leads_with_the_mpm_and_prints_its_pictures_last(tmp_path):
     assert len(runs) == 4
     again = CliRunner().invoke(app, ["demo", "--out", str(out), "--model", str(model), "--quick"])
     assert again.exit_code == 0, again.output
+    assert "--force removes" not in again.output  # the demo replaces its own back-calculations quietly
     assert {p: p.stat().st_mtime_ns for p in (out / "mpm").glob("*/trajectory.npz")} == runs  # reused, not rerun
 
 

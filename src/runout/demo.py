@@ -13,14 +13,17 @@
 4. The same back-calculation through the learned engine, L-BFGS-B from two starts (the lower loss
    kept): 4_dam_learned/inverse/.
 
-Each step prints one line of what it ran and one of its measured error; the pictures' paths come
-last. Every MPM run is cached in OUT/mpm/, so a second demo reuses them.
+Each step prints one line saying what it runs, before it runs, then one with its measured error and
+time; the pictures' paths come last. Every MPM run is cached in OUT/mpm/, so a second demo reuses them.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -83,18 +86,16 @@ def run_demo(out: Path, model: Path, examples: Path, quick: bool = False, force:
 
 def _mpm_forward(scene: Scene, cache: MpmCache, out: Path, log: Log) -> Path:
     """Step 1: the MPM's runout at the scene's cells, and the fronts' change at cells twice as coarse."""
+    cell = scene.domain.cell_size
+    log(f"1. MPM forward runout of {scene.name} from rest at its {cell:g} m cells ({_flow_seconds(scene):.1f} s of flow)")
     t0 = time.perf_counter()
     fine = _mpm(cache, scene)
-    seconds = time.perf_counter() - t0
-    cell = scene.domain.cell_size
     coarse = _mpm(cache, scene.with_point_spacing(2 * cell / scene.domain.points_per_cell, SLOPE))
-    log(f"1. MPM forward runout of {scene.name}: {fine.n_points} points at {cell:g} m cells, "
-        f"{_flow_seconds(fine):.1f} s of flow, in {seconds:.0f} s")
     left, right = side_runouts(fine, mound_axis(fine))
     coarse_left, coarse_right = side_runouts(coarse, mound_axis(coarse))
-    log(f"   fronts {left:.1f} m left and {right:.1f} m right of the axis; at {2 * cell:g} m cells "
-        f"{coarse_left:.1f} / {coarse_right:.1f} m ({_percent(coarse_left, left)} / {_percent(coarse_right, right)}: "
-        "the error of halving the resolution)")
+    log(f"   fronts {left:.1f} m left and {right:.1f} m right of the axis ({fine.n_points} points); at {2 * cell:g} m "
+        f"cells {coarse_left:.1f} / {coarse_right:.1f} m ({_percent(coarse_left, left)} / {_percent(coarse_right, right)}: "
+        f"the error of halving the resolution); {_seconds(t0)}")
     out.mkdir(parents=True, exist_ok=True)
     last = fine.n_frames - 1
     return save_comparison(fine, fine, out / "slope.png", (0, last), (
@@ -103,21 +104,22 @@ def _mpm_forward(scene: Scene, cache: MpmCache, out: Path, log: Log) -> Path:
 
 def _learned_forward(engine, scene: Scene, cache: MpmCache, out: Path, quick: bool, log: Log) -> tuple[Path, Path]:
     """Step 3: the learned engine's runout from rest beside the MPM's at the same point spacing."""
+    name = engine_label(engine)
+    at_rest = scene_at_rest(scene)
+    log(f"3. {name} forward runout of {scene.name} from rest at its {scene.domain.cell_size:g} m cells "
+        f"({_flow_seconds(scene):.1f} s of flow){_outside_training(len(range_warnings(engine, at_rest)))}")
+    t0 = time.perf_counter()
     truth = _mpm(cache, scene)
     truth.name = f"{scene.name} (MPM)"
-    t0 = time.perf_counter()
-    traj = engine.rollout_trajectory(scene_at_rest(scene), truth.n_frames, stop_speed=None)  # every frame the MPM has
-    name = engine_label(engine)
+    traj = engine.rollout_trajectory(at_rest, truth.n_frames, stop_speed=None)  # every frame the MPM has
     traj.name = f"{scene.name} ({name})"
-    outside = _outside_training(len(range_warnings(engine, traj)))
-    log(f"3. {name} forward runout of {scene.name} from rest: {traj.n_points} points at "
-        f"{scene.domain.cell_size:g} m cells, {_flow_seconds(traj):.1f} s of flow, in {time.perf_counter() - t0:.0f} s{outside}")
     metrics = comparison_metrics(truth, traj, scene.domain.cell_size)
     left, right = metrics["runout_left_m"], metrics["runout_right_m"]
     log(f"   outermost points {left['predicted']:.1f} m left and {right['predicted']:.1f} m right of the axis, the MPM's "
         f"{left['truth']:.1f} / {right['truth']:.1f} m at these cells ({_percent(left['predicted'], left['truth'])} / "
         f"{_percent(right['predicted'], right['truth'])}); deposit overlap {metrics['deposit_iou']:.2f} (the MPM's: 1); "
-        f"points {metrics['position_mse_mean_m2'] ** 0.5:.1f} m from the MPM's (root mean square over the run)")
+        f"points {metrics['position_mse_mean_m2'] ** 0.5:.1f} m from the MPM's (root mean square over the run); "
+        f"{_seconds(t0)}")
     out.mkdir(parents=True, exist_ok=True)
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     truth, traj = at_common_times(truth, traj)
@@ -130,25 +132,37 @@ def _back_calculation(scene: Scene, cache: MpmCache, out: Path, quick: bool, log
                       model: Path | None = None) -> tuple[Path, ...]:
     """Steps 2 and 4: c of FREE_MATERIAL back-calculated from the MPM's deposit of the scene,
     through `engine` (mpm-ad, or the learned engine in `model`, from INVERSE_STARTS starts)."""
+    starts = 1 if model is None else INVERSE_STARTS
+    log(f"{'2' if model is None else '4'}. {name} back-calculation of c of the small dam's {FREE_MATERIAL} from the "
+        f"MPM's deposit, at {scene.domain.cell_size:g} m cells, L-BFGS-B from {starts} start{'s' * (starts > 1)}")
+    t0 = time.perf_counter()
     out.mkdir(parents=True, exist_ok=True)
     save_scene(scene, out / "scene.toml")
     target = cache.ensure([scene], progress=False)[0]
     spec = _write_spec(out, target, scene.materials[FREE_MATERIAL], quick, learned=model is not None)
-    starts = 1 if model is None else INVERSE_STARTS
-    t0 = time.perf_counter()
     warnings: list[str] = []  # values outside a learned engine's training ranges: counted, not listed
-    result = invert(spec, out / "inverse", engine=engine, model=model, starts=starts, force=True, warn=warnings.append)
+    result = _replacing_quietly(lambda: invert(spec, out / "inverse", engine=engine, model=model, starts=starts,
+                                               force=True, warn=warnings.append))
     evaluations = sum(r.evaluations for r in result.starts)
-    step = "4" if model is not None else "2"
-    log(f"{step}. {name} back-calculation of c of the small dam's {FREE_MATERIAL} from the MPM's deposit "
-        f"({scene.domain.cell_size:g} m cells): {evaluations} evaluation{'s' * (evaluations != 1)}"
-        f"{f' from {starts} starts' if starts > 1 else ''} in {time.perf_counter() - t0:.0f} s{_outside_training(len(warnings))}")
     truth = scene.materials[FREE_MATERIAL].cohesion
     (found,) = result.best.values
-    log(f"   c = {found:.2f} kPa for a true {truth:g} kPa ({_percent(found, truth, digits=2)})")
+    log(f"   c = {found:.2f} kPa for a true {truth:g} kPa ({_percent(found, truth, digits=2)}) after {evaluations} "
+        f"evaluation{'s' * (evaluations != 1)}; {_seconds(t0)}{_outside_training(len(warnings))}")
     best = result.best.out_dir
     pictures = (best / "parameters.png", best / "deposit.png")
     return (*pictures, out / "inverse" / "starts.png") if starts > 1 else pictures
+
+
+def _replacing_quietly(run: Callable):
+    """run(), leaving out the "--force removes ..." notice of a back-calculation that replaces
+    the demo's own earlier one in its folder (meant for a user's folders); every other line
+    it writes to stderr passes."""
+    caught = io.StringIO()
+    with contextlib.redirect_stderr(caught):
+        result = run()
+    sys.stderr.writelines(line for line in caught.getvalue().splitlines(keepends=True)
+                          if not line.startswith("--force removes"))
+    return result
 
 
 def _mpm(cache: MpmCache, scene: Scene) -> Trajectory:
@@ -163,8 +177,12 @@ def _outside_training(count: int) -> str:
     return f"; {count} values outside the model's training ranges (runout rollout and invert name them)"
 
 
-def _flow_seconds(traj: Trajectory) -> float:
-    return (traj.n_frames - 1) * traj.frame_dt
+def _flow_seconds(scene: Scene) -> float:
+    return (scene.time.frames - 1) * scene.time.frame_dt
+
+
+def _seconds(t0: float) -> str:
+    return f"{time.perf_counter() - t0:.0f} s"
 
 
 def _percent(value: float, truth: float, digits: int = 1) -> str:
