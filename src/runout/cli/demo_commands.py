@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+
 import typer
 
 from runout.cli.app import app
