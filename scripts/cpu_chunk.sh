@@ -112,4 +112,4 @@ OMP_NUM_THREADS=$threads "$runout" train --data "$data" --out "$run" --steps 100
 
 cp "$run/checkpoint.pt" "$model.tmp" && mv "$model.tmp" "$model"
 cp "$run/log.jsonl" "$log"
-echo "chunk done: $model ($(du -h "$model" | cut -f1)) and $log; commit them with the figures in models/README.md"
+echo "chunk done: $model ($(du -h "$model" | cut -f1)) and $log; commit them with the figures in docs/training.md (the campaign journal)"

@@ -13,7 +13,7 @@ PACKAGE = Path(__file__).resolve().parents[1] / "src" / "runout"
 # Bottom to top; a module belongs to the layer of the longest name here that it starts with.
 LAYERS = (
     ("foundation", ("runout", "runout.errors", "runout.defaults", "runout.contract", "runout.npz", "runout.outputs",
-                    "runout.reading")),
+                    "runout.reading", "runout.shipped")),
     ("data", ("runout.scene", "runout.checks", "runout.simfiles", "runout.trajectory", "runout.dataset", "runout.metrics")),
     ("engines", ("runout.transfer", "runout.mpm", "runout.gns", "runout.neural_mpm", "runout.learned")),
     ("views", ("runout.plots", "runout.vtk")),

@@ -69,28 +69,65 @@ def session_args(tmp_path: Path, stage: str, data: Path, minutes: str = "0.15", 
 # ----------------------------------------------------------------------------- demo
 
 
-def test_quick_demo_writes_the_forward_and_inverse_pictures(tmp_path):
+def test_quick_demo_leads_with_the_mpm_and_prints_its_pictures_last(tmp_path):
     model = tiny_model(tmp_path / "model", width=2, radius=11.5)  # 10 m cells: ~1,000 slope points
     out = tmp_path / "demo"
     result = CliRunner().invoke(app, ["demo", "--out", str(out), "--model", str(model), "--quick"])
     assert result.exit_code == 0, result.output
-    starts = json.loads((out / "inverse" / "result" / "starts.json").read_text())["starts"]
+    lines = result.output.splitlines()
+    steps = [line for line in lines if line[:2] in ("1.", "2.", "3.", "4.")]
+    assert [s[:2] for s in steps] == ["1.", "2.", "3.", "4."]  # the MPM's two answers first, then the learned engine's
+    assert steps[0].startswith("1. MPM forward runout") and "at its 4 m cells" in steps[0]  # the scene's own cells
+    assert steps[1].startswith("2. MPM (reverse-mode AD) back-calculation") and "at 10 m cells" in steps[1]
+    assert steps[2].startswith("3. GNS forward runout") and "at its 10 m cells" in steps[2]  # the model's spacing
+    assert steps[3].startswith("4. GNS back-calculation") and "from 2 starts" in steps[3]
+    errors = [lines[lines.index(step) + 1] for step in steps]  # each step's error line follows it
+    assert all(error.startswith("   ") and " %" in error for error in errors), errors
+    assert "(6750 points)" in errors[0]
+    assert "outside the model's training ranges" in errors[3]  # the dam's phi = 0 shell, which no training scene had
+    assert "outside" not in errors[1]  # the MPM has no training ranges
+
+    metrics = json.loads((out / "3_slope_learned" / "metrics.json").read_text())  # the GNS beside the MPM of the same points
+    left = metrics["runout_left_m"]
+    assert left["truth"] > 0 and f"outermost points {left['predicted']:.1f} m left" in result.output
+    starts = json.loads((out / "4_dam_learned" / "inverse" / "starts.json").read_text())["starts"]
     assert len(starts) == 2 and starts[0]["initial"] != starts[1]["initial"]  # two L-BFGS-B starts, the lower loss kept
     best = min(range(2), key=lambda k: starts[k]["loss"])
-    for name in ("forward/animation.gif", "forward/final.png", "forward/metrics.json", f"inverse/result/start_0{best}/loss.png",
-                 f"inverse/result/start_0{best}/parameters.png", f"inverse/result/start_0{best}/deposit.png",
-                 "inverse/result/start_00/history.csv", "inverse/result/start_01/history.csv", "inverse/result/starts.png",
-                 "inverse/mpm_ad/parameters.png", "inverse/mpm_ad/history.csv"):
+    pictures = lines[lines.index(next(line for line in lines if line.startswith("demo done"))) + 1:]
+    expected = ["1_slope_mpm/slope.png", "2_dam_mpm/inverse/parameters.png", "2_dam_mpm/inverse/deposit.png",
+                "3_slope_learned/final.png", "3_slope_learned/animation.gif",
+                f"4_dam_learned/inverse/start_0{best}/parameters.png", f"4_dam_learned/inverse/start_0{best}/deposit.png",
+                "4_dam_learned/inverse/starts.png"]
+    assert [p.strip() for p in pictures] == [str(out / name) for name in expected]  # the output ends with the pictures
+    for name in expected:
         assert (out / name).stat().st_size > 0, name
-        assert str(out / name) in result.output or name.endswith(".csv")
-    assert "1080 points at 10 m cells" in result.output  # the slope filled at the model's spacing
-    metrics = json.loads((out / "forward" / "metrics.json").read_text())  # the GNS beside the MPM of the same points
-    assert metrics["runout_left_m"]["truth"] > 0 and f"left front {metrics['runout_left_m']['predicted']:.1f} m" in result.output
-    assert len(list((out / "forward").glob("mpm_*/trajectory.npz"))) == 1
-    assert "yardstick" in result.output and "(GNS: " in result.output  # the MPM-AD answer beside the GNS one
-    assert len(list((out / "inverse").glob("mpm_*/trajectory.npz"))) == 1
+    # the slope at its own 4 m cells, at 8 m (step 1's resolution check) and at the model's 10 m; the
+    # dam at its own 10 m cells, which are also the model's (steps 2 and 4 share the target)
+    runs = {p: p.stat().st_mtime_ns for p in (out / "mpm").glob("*/trajectory.npz")}
+    assert len(runs) == 4
     again = CliRunner().invoke(app, ["demo", "--out", str(out), "--model", str(model), "--quick"])
-    assert again.exit_code == 0 and "cached" in again.output  # the MPM target is reused
+    assert again.exit_code == 0, again.output
+    assert "--force removes" not in again.output  # the demo replaces its own back-calculations quietly
+    assert {p: p.stat().st_mtime_ns for p in (out / "mpm").glob("*/trajectory.npz")} == runs  # reused, not rerun
+
+
+def test_the_demo_reads_its_model_from_runout_models(tmp_path, monkeypatch):
+    models = tmp_path / "models"
+    models.mkdir()
+    shutil.copyfile(tiny_model(tmp_path / "model", width=2, radius=11.5), models / "slope.pt")
+    monkeypatch.setenv("RUNOUT_MODELS", str(models))
+    result = CliRunner().invoke(app, ["demo", "--out", str(tmp_path / "demo"), "--quick"])
+    assert result.exit_code == 0, result.output
+    assert f"GNS in {models / 'slope.pt'}" in result.output
+
+
+def test_runout_models_without_the_model_is_one_sentence(tmp_path, monkeypatch):
+    monkeypatch.setenv("RUNOUT_MODELS", str(tmp_path))
+    result = CliRunner().invoke(app, ["demo", "--out", str(tmp_path / "demo"), "--quick"])
+    assert isinstance(result.exception, InputError)
+    assert str(result.exception) == (f"RUNOUT_MODELS={tmp_path}: slope.pt is not in that folder; set RUNOUT_MODELS to a "
+                                     "folder that holds slope.pt, unset it to use the installed model, or pass --model FILE.")
+    assert not (tmp_path / "demo").exists()
 
 
 def test_demo_refuses_a_model_without_cohesion_input(tmp_path):

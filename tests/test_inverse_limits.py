@@ -6,11 +6,15 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pytest
 
 from runout.errors import InputError
 from runout.inverse import invert, load_inverse_spec
-from runout.inverse.history import HISTORY_JSON
+from runout.inverse.figures import draw_deposits, draw_parameters
+from runout.inverse.history import HISTORY_JSON, History, Record, RunInfo
+from runout.inverse.optimise import deposit_path
+from runout.inverse.spec import FreeParameter
 from runout.scene import save_scene, scene_from_dict
 from test_cli_exits import one_sentence, run
 from test_inverse import TOY_SCENE, toy, write_spec  # noqa: F401  (fixtures)
@@ -86,3 +90,24 @@ def test_a_malicious_target_runs_nothing(toy, tmp_path, capsys):
                     '[parameters.left]\nc = { lower = 5.0, upper = 60.0 }\n')
     code, err = run(["invert", spec, "--model", toy / "model.pt", "--out", tmp_path / "run"], capsys)
     assert code == 2 and "refused" in err and one_sentence(err) and not marker.exists()
+
+
+def test_an_answer_kept_from_a_line_search_is_drawn(tmp_path):
+    """When the evaluations run out inside a line search, the answer is the lowest loss seen,
+    which is no L-BFGS-B iterate (the demo's GNS back-calculation ends so): History.kept names
+    it and the figures draw it beside the iterates."""
+    free = (FreeParameter("shell", "c", 70.0, 10.0, 100.0),)
+    history = History(tmp_path, free, RunInfo("digest", "gns", "model", [0.6]), "cpu", [40.0])
+    deposit = np.array([[0.0, 0.0], [10.0, 0.0], [5.0, 5.0]])  # m
+    deposit_path(tmp_path, 0).parent.mkdir()
+    for k, (c, loss) in enumerate(((15.0, 37.3), (100.0, 68.3), (25.6, 34.1))):
+        history.add(Record(k, None, [free[0].normalise(c)], [c], loss, [0.0], [0.0], 1.0, 1.0, 0))
+        np.save(deposit_path(tmp_path, k), deposit + c)
+    history.mark_iteration(np.array([free[0].normalise(15.0)]), 0)
+    history.finish({"values": [25.6], "loss": 34.1})
+    assert history.kept is history.records[2]
+    draw_parameters(history, tmp_path / "parameters.png")
+    draw_deposits(history, deposit, np.zeros(3, int), np.ones(3, bool), [0], tmp_path / "deposit.png")
+    assert (tmp_path / "parameters.png").stat().st_size > 0 and (tmp_path / "deposit.png").stat().st_size > 0
+    history.finish({"values": [15.0], "loss": 37.3})  # a run that ended on its iterate keeps nothing else
+    assert history.kept is None

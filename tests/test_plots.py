@@ -29,3 +29,26 @@ def test_both_animations_write_every_chosen_frame(tmp_path):
     assert Image.open(stacked).n_frames == 4  # frames 0, 3, 6 and the last
     side = save_rollout_animation(traj, traj, tmp_path / "animation", max_frames=5)
     assert side.suffix in (".gif", ".mp4") and side.is_file()
+
+
+def _coloured_share(image: Image.Image) -> float:
+    """Share of the pixels that are coloured (not white, grey or black): the drawn soil points."""
+    rgb = np.asarray(image.convert("RGB")).astype(int)
+    return float(((rgb.max(axis=2) - rgb.min(axis=2)) > 30).mean())
+
+
+def test_every_frame_of_an_animation_shows_its_points(tmp_path):
+    """Each frame is drawn into a cleared axes; the points' size must not shrink to nothing
+    after the first (it did: every later frame of the demo's animation was empty)."""
+    xy = np.stack(np.meshgrid(np.arange(300.0, 700.0, 4.0), np.arange(2.0, 100.0, 4.0)), -1).reshape(-1, 2)
+    positions = np.repeat(xy[None].astype(np.float32), 12, axis=0)
+    positions[:, :, 0] += np.linspace(0, 50, 12)[:, None]  # the block slides right
+    n = len(xy)
+    traj = Trajectory(positions, np.full(n, 6), np.zeros(n, dtype=np.int64), [Material("sand")], 0.0375,
+                      np.array([[0.0, 1000.0], [0.0, 200.0]]))
+    gif = Image.open(save_animation([traj, traj], tmp_path / "slide.gif", stride=4))
+    shares = []
+    for k in range(gif.n_frames):
+        gif.seek(k)
+        shares.append(_coloured_share(gif))
+    assert gif.n_frames == 4 and min(shares) > 0.5 * shares[0] > 0, shares

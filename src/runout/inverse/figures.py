@@ -56,12 +56,17 @@ def draw_loss(history: History, path: Path) -> None:
     _save(fig, path)
 
 
+KEPT = "kept: the lowest loss (evaluations ran out)"
+
+
 def draw_parameters(history: History, path: Path) -> None:
-    its = history.iterations
+    its, kept = history.iterations, history.kept
     n = len(history.free)
     fig, axes = _figure(1, n, figsize=(4 * n, 3.4))
     for k, (p, ax) in enumerate(zip(history.free, axes[0])):
         ax.plot([r.iteration for r in its], [r.values[k] for r in its], "o-", color="tab:blue", label="estimate")
+        if kept is not None:  # drawn one step after the last iterate: where the run's answer came from
+            ax.plot([its[-1].iteration + 1], [kept.values[k]], "*", ms=12, color="tab:green", label=KEPT)
         ax.axhspan(p.lower, p.upper, color="0.92", zorder=0, label="bounds")
         ax.axhline(p.lower, color="0.5", lw=0.8, ls="--")
         ax.axhline(p.upper, color="0.5", lw=0.8, ls="--")
@@ -81,15 +86,17 @@ def draw_deposits(
     path: Path,
 ) -> None:
     by_iteration = {r.iteration: r for r in history.iterations}
-    fig, axes = _figure(len(iterations), 1, figsize=(10, 2.6 * len(iterations)))
+    panels = [(by_iteration[it], f"iteration {it}") for it in iterations]
+    if history.kept is not None:
+        panels.append((history.kept, f"evaluation {history.kept.evaluation}, {KEPT}"))
+    fig, axes = _figure(len(panels), 1, figsize=(10, 2.6 * len(panels)))
     lo, hi = target[moving].min(axis=0), target[moving].max(axis=0)
-    for ax, it in zip(axes[:, 0], iterations):
-        record = by_iteration[it]
+    for ax, (record, label) in zip(axes[:, 0], panels):
         predicted = read_deposit(history.out_dir, record.evaluation, len(target))
         ax.scatter(*target[moving].T, s=3, c="0.75", label="target")
         ax.scatter(*predicted[moving].T, s=1, c=material_id[moving], cmap="tab10", vmin=0, vmax=9, label="predicted")
         values = ", ".join(f"{p.name} = {v:.3g} {p.unit}" for p, v in zip(history.free, record.values))
-        ax.set_title(f"iteration {it}: {values}", fontsize=9)
+        ax.set_title(f"{label}: {values}", fontsize=9)
         ax.set_aspect("equal")
         pad = 0.05 * (hi - lo).max()
         ax.set_xlim(lo[0] - pad, hi[0] + pad)
@@ -105,8 +112,11 @@ def draw_starts(results: list[StartResult], path: Path) -> None:
     fig, axes = _figure(1, len(free), figsize=(4 * len(free), 3.4))
     for k, (p, ax) in enumerate(zip(free, axes[0])):
         for n, result in enumerate(results):
-            its = result.history.iterations
-            ax.plot([r.iteration for r in its], [r.values[k] for r in its], "o-", ms=3, label=f"start {n}")
+            its, kept = result.history.iterations, result.history.kept
+            line, = ax.plot([r.iteration for r in its], [r.values[k] for r in its], "o-", ms=3, label=f"start {n}")
+            if kept is not None:  # the start's answer, one step after its last iterate
+                ax.plot([its[-1].iteration + 1], [kept.values[k]], "*", ms=10, color=line.get_color(),
+                        label=f"start {n} kept (evaluations ran out)")
         ax.axhline(p.lower, color="0.5", lw=0.8, ls="--")
         ax.axhline(p.upper, color="0.5", lw=0.8, ls="--")
         true_values = results[0].history.true_values  # the values that made the target, when it records them

@@ -65,6 +65,14 @@ class History:
     def iterations(self) -> list[Record]:
         return [r for r in self.records if r.iteration is not None]
 
+    @property
+    def kept(self) -> Record | None:
+        """The evaluation the run ended on when it is no L-BFGS-B iterate (the evaluations ran out
+        in a line search, and the lowest loss was kept); None when the run ended on an iterate."""
+        if self.result is None or any(r.values == list(self.result["values"]) for r in self.iterations):
+            return None
+        return next((r for r in self.records if r.values == list(self.result["values"])), None)
+
     def add(self, record: Record) -> None:
         self.records.append(record)
         self.write()

@@ -38,12 +38,11 @@ import numpy as np
 import torch
 import warp as wp
 
-wp.config.log_level = max(wp.config.log_level, wp.LOG_WARNING)  # no device banner or per-module load lines on stdout
-
 from runout.defaults import FLIP_WAVE
 from runout.mpm.geostatic import GRAVITY
 from runout.mpm.mohr_coulomb import MaterialArrays
 from runout.mpm.solver import DILUTE, LOOSE, PAD, Grid, Points, flip_shares
+from runout.mpm.warp_runtime import start_warp
 
 Real = wp.float64  # every real number of the substep; literals must carry it (Warp does not mix widths)
 NODE = wp.constant(wp.vec3d(0.0, 1.0, 2.0))  # stencil node index a as a real: NODE[a] (Real(a) would retype the loop index)
@@ -469,7 +468,7 @@ class WarpSubstep:
         if pts.x.dtype != torch.float64:
             raise ValueError(f"the Warp MPM kernels run in float64; got points in {pts.x.dtype} "
                              "(build the batch with dtype=torch.float64)")
-        wp.init()
+        start_warp()
         self.device = wp.device_from_torch(pts.x.device)
         self.stream = wp.stream_from_torch(pts.x.device) if pts.x.is_cuda else None  # torch's, so no race with it
         self.n_points = len(pts.x)

@@ -35,6 +35,7 @@ from runout.mpm.kernels import (
 )
 from runout.mpm.mohr_coulomb import MaterialArrays
 from runout.mpm.setup import Batch
+from runout.mpm.warp_runtime import start_warp
 
 STATE = ("x", "v", "C", "stress", "volume")
 STRENGTHS = ("sin_phi", "cohesion", "tension", "c_cos", "corner3")  # the MaterialConstants that follow phi and c
@@ -87,7 +88,7 @@ class WarpRun:
         pts = batch.pts
         if pts.x.dtype != torch.float64:
             raise ValueError(f"the Warp MPM kernels run in float64; got points in {pts.x.dtype}")
-        wp.init()
+        start_warp()
         self.device = wp.device_from_torch(pts.x.device)
         self.stream = wp.stream_from_torch(pts.x.device) if pts.x.is_cuda else None  # torch's, so no race with it
         self.dx, self.n_points, self.n_nodes, self.longest = batch.grid.dx, len(pts.x), batch.grid.size, longest

@@ -36,7 +36,12 @@ def _frame_axes(ax, bounds, title: str | None) -> None:
 
 
 def _marker_size(ax, traj: Trajectory) -> float:
-    """Marker area (pt^2) so that points at the seeding spacing roughly touch."""
+    """Marker area (pt^2) so that points at the seeding spacing roughly touch, from the axes'
+    width once the domain's limits and equal aspect apply: after ax.clear() the axes' active
+    box is a stale square, which drew every animation frame after the first with points too
+    small to see."""
+    _frame_axes(ax, traj.bounds, None)
+    ax.apply_aspect()
     fig = ax.figure
     width_in = fig.get_size_inches()[0] * ax.get_position().width
     width_m = traj.bounds[0][1] - traj.bounds[0][0]

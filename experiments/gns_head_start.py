@@ -8,7 +8,7 @@ fronts, extent runout). S = 0 is the start from rest that users get. If a head s
 frames brings the position error near the target, the start is what the model misses; if not,
 the flow after it is wrong too.
 
-    OMP_NUM_THREADS=1 .venv/bin/python bench/gns_head_start.py MODEL --heads 0,5,20 --valid 16
+    OMP_NUM_THREADS=1 .venv/bin/python experiments/gns_head_start.py MODEL --heads 0,5,20 --valid 16
 
 Frames before S count in the score (they are the MPM's, error 0), as they would for a model
 that got them right.

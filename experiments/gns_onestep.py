@@ -15,8 +15,8 @@ its normalised acceleration for frame t with the MPM's, over the soil points of 
 A model can be right from frame 5 on and still roll out far too slowly, if it misses the
 first accelerations from rest (docs/training.md, round 8). Seconds per model for 16 scenes.
 
-    .venv/bin/python bench/gns_onestep.py models/pilots/A.pt --data data/ft8 --split valid
-    .venv/bin/python bench/gns_onestep.py A.pt B.pt --frames 1,2,3,5,10,20,40,80 --last-step
+    .venv/bin/python experiments/gns_onestep.py models/pilots/A.pt --data data/ft8 --split valid
+    .venv/bin/python experiments/gns_onestep.py A.pt B.pt --frames 1,2,3,5,10,20,40,80 --last-step
 """
 
 from __future__ import annotations

@@ -6,10 +6,10 @@ from simulated frames S, S + K, ... (the public GNS's start, the flow already un
 against the MPM's displacement over the same frames. A model that does not start shows ~0 from
 rest; one that has not learned the flow shows a wrong displacement from simulated frames.
 
-    .venv/bin/python bench/gns_start.py --model runs/recipe5/x-noise0.03-exact-pf2/checkpoint.pt
-    .venv/bin/python bench/gns_start.py --model M --data data/ft8 --scenes 4,13 --frames 100 --starts 5,20
+    .venv/bin/python experiments/gns_start.py --model runs/recipe5/x-noise0.03-exact-pf2/checkpoint.pt
+    .venv/bin/python experiments/gns_start.py --model M --data data/ft8 --scenes 4,13 --frames 100 --starts 5,20
 
-This is a look, not a verdict: pilots are judged by bench/train_pilots.py (16 scenes from rest,
+This is a look, not a verdict: pilots are judged by experiments/train_pilots.py (16 scenes from rest,
 all frames, against the MPM and standing still).
 """
 

@@ -4,11 +4,11 @@ A GNS rolled out from rest swings from checkpoint to checkpoint (docs/training.m
 so the last checkpoint is not always the best. This script rolls each given checkpoint (the
 snapshots `runout train --keep-every N` keeps, or any checkpoint files) out from rest over all
 frames of a range of the validation scenes, scores it against the MPM and against standing
-still (runout.evaluate.heldout, the measures of bench/train_pilots.py), and names the one with
-the lowest mean position error. The judged scenes (the first 16, bench/train_pilots.py
+still (runout.evaluate.heldout, the measures of experiments/train_pilots.py), and names the one with
+the lowest mean position error. The judged scenes (the first 16, experiments/train_pilots.py
 --valid 16) are left out by default: selecting on them would make their score optimistic.
 
-    python bench/select_checkpoint.py --data data/ft8 --scenes 16:26 \\
+    python experiments/select_checkpoint.py --data data/ft8 --scenes 16:26 \\
         --checkpoints runs/recipe10/NAME/snapshots/*.pt runs/recipe10/NAME/checkpoint.pt --threads 1
 
 --last-step also rolls out each checkpoint's last-step weights (train_model of an --ema run).

@@ -7,18 +7,21 @@ gives wall and CPU seconds per step (CPU seconds are what a loaded machine hides
 the cost over n = 0. `runout train --pushforward N` draws n uniformly from 0..N, so its
 mean cost is the mean of the rows.
 
-    .venv/bin/python bench/pushforward.py [--pushforward 2] [--threads 1] [--bf16] [--repeats 4]
+    .venv/bin/python experiments/pushforward.py [--pushforward 2] [--threads 1] [--bf16] [--repeats 4]
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import sys
 import time
+from pathlib import Path
 
 import torch
 
-from gns import BOUNDS, RADIUS, STATS, LatticeData, lattice_window  # bench/gns.py, beside this script
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # the lattice graphs of bench/gns.py
+from gns import BOUNDS, RADIUS, STATS, LatticeData, lattice_window  # noqa: E402
 from runout.contract import FeatureSchema
 from runout.gns.simulator import NetworkConfig, Simulator
 from runout.train import Context, TrainConfig, _train_step, unrolled_steps

@@ -7,9 +7,9 @@ checkpoint rolls out the first --valid trajectories of the dataset's valid split
 their frames, and the table gives the mean |runout error| (relative, farthest soil point at
 the last frame) and the mean position MSE over the rollout (m^2), beside the steps reached.
 
-    python bench/train_pilots.py --data data/base8 --out runs/pilots --minutes 10 --parallel 2
-    python bench/train_pilots.py --data data/base8 --out runs/pilots --evaluate-only
-    python bench/train_pilots.py --data data/ft8 --out runs/ftpilots --init models/slope.pt \
+    python experiments/train_pilots.py --data data/base8 --out runs/pilots --minutes 10 --parallel 2
+    python experiments/train_pilots.py --data data/base8 --out runs/pilots --evaluate-only
+    python experiments/train_pilots.py --data data/ft8 --out runs/ftpilots --init models/slope.pt \
         --pilots ft-stride2 ft-stride1 --minutes 25 --parallel 1 --threads 1 --valid 6
 
 Results go to OUT/pilots.json and a Markdown table on stdout (pasted into docs/training.md).

@@ -7,10 +7,10 @@ displacement (m) of the model beside the MPM's, the correlation across scenes, a
 model's displacements against the MPM's (1: the right differences between scenes; near 0: one
 motion for all, whatever its mean).
 
-    .venv/bin/python bench/gns_onset.py runs/recipe8/x-noise0.01-exact-pf2-onset0.25/checkpoint.pt
-    .venv/bin/python bench/gns_onset.py A.pt B.pt --data data/ft8 --valid 16 --at 20,60,120
+    .venv/bin/python experiments/gns_onset.py runs/recipe8/x-noise0.01-exact-pf2-onset0.25/checkpoint.pt
+    .venv/bin/python experiments/gns_onset.py A.pt B.pt --data data/ft8 --valid 16 --at 20,60,120
 
-A look, not a verdict: pilots are judged by bench/train_pilots.py (16 scenes from rest, all
+A look, not a verdict: pilots are judged by experiments/train_pilots.py (16 scenes from rest, all
 frames, against the MPM and standing still). About 2-3 minutes per model on one core for 16
 scenes of 120 frames at 8 m cells.
 """
