@@ -191,3 +191,17 @@ def test_a_checkpoint_of_one_engine_where_the_other_is_asked_for_is_one_sentence
     gns_file = REPO / "models" / "slope.pt"
     with pytest.raises(InputError, match="holds a gns engine's model where a neural-mpm checkpoint was expected"):
         read_neural_mpm(gns_file)
+
+
+def test_a_shipped_file_holds_the_engine_and_the_resume_file_the_run(dataset, tmp_path):
+    from runout.neural_mpm.checkpoint import load_engine, read_checkpoint, ship
+
+    engine = train(TrainSettings(data=str(dataset), out=str(tmp_path / "run"), steps=2, batch_size=2, valid_every=0,
+                                 progress=False), TINY)
+    ship(tmp_path / "run" / CHECKPOINT, tmp_path / "shipped.pt", tmp_path / "resume.pt")
+    shipped, resume = read_checkpoint(tmp_path / "shipped.pt"), read_checkpoint(tmp_path / "resume.pt")
+    assert "optimizer" not in shipped and "optimizer" in resume and shipped["step"] == resume["step"] == 2
+    assert shipped["data_ranges"]["friction_angle_deg"] == pytest.approx([20.0, 20.0], abs=1e-4)
+    loaded = load_engine(tmp_path / "shipped.pt")
+    for (name, a), (_, b) in zip(engine.state_dict().items(), loaded.state_dict().items()):
+        assert torch.equal(a, b), name

@@ -89,3 +89,16 @@ def load_engine(path: str | Path, device: str | torch.device = "cpu") -> NeuralM
     """The engine stored in a checkpoint, on `device`, in eval mode."""
     return engine_from_checkpoint(read_checkpoint(path), path).to(device).eval()
 
+
+
+def ship(run_file: str | Path, shipped: str | Path, resume: str | Path, ranges: dict | None = None) -> None:
+    """From a training run's checkpoint, the shipped file (the engine, its config and what it
+    was trained on: no optimizer state) and the resume file (everything, for the next chunk).
+    ranges: data_ranges to record where the run's file has none (runs older than the record)."""
+    ckpt = read_checkpoint(run_file)
+    if ranges is not None and not ckpt.get("data_ranges"):
+        ckpt["data_ranges"] = ranges
+    engine = engine_from_checkpoint(ckpt, run_file)
+    trained = {k: ckpt[k] for k in ("step", "cpu_seconds", "best", "train") if k in ckpt}
+    save_checkpoint(shipped, engine, **trained)
+    save_checkpoint(resume, engine, **{**trained, **{k: ckpt[k] for k in ("optimizer",) if k in ckpt}})

@@ -192,6 +192,13 @@ class Run:
         save_checkpoint(Path(self.settings.out) / name, self.engine, **state)
 
 
+def training_ranges(data: str | Path, config: NeuralMPMConfig | None = None) -> dict:
+    """What an engine trained on DATA/train.npz was trained on (runout.learned.training_range)."""
+    config = config or NeuralMPMConfig()
+    sampler = WindowSampler.from_split(data, "train", config.history, config.material_width)
+    return _ranges(TrainSettings(data=str(data)), sampler)
+
+
 def _ranges(settings: TrainSettings, sampler: WindowSampler) -> dict:
     """What the engine is trained on (runout.learned.training_range), with the spacing of its points."""
     from runout.learned.training_range import measure
