@@ -74,6 +74,8 @@ KNOWN = {
     "invert": ("history.json", "history.csv", "loss.png", "parameters.png", "deposit.png", "deposits",
                "start_[0-9][0-9]", "starts.json", "starts.csv", "starts.png"),
     "evaluate": ("columns", "slope", "diagnostics", "inverse", "sensitivity"),
+    "hazard": ("hazard.json", "parts", "realisations.csv", "realisations.json", "exceedance.csv", "runout_cdf.csv",
+               "summary.json", "exceedance.png", "runouts.png"),
 }
 # What each command writes inside the folders it lists (fnmatch patterns of paths relative to the
 # folder, keyed by the folder's name): a stale folder loses these files and the runs nested in it
@@ -92,6 +94,7 @@ INSIDE = {
     "generate": {"scenes": ("scene_[0-9]*.toml",), "parts": ("part_[0-9]*.npz",)},  # and part_*.tmp.npz, being written
     "train": {"snapshots": ("step-[0-9]*.pt", "step-[0-9]*.pt.tmp"), "tensorboard": ("events.out.tfevents.*",)},
     "invert": {"deposits": ("eval_[0-9]*.npy*",), "start_[0-9][0-9]": _START},
+    "hazard": {"parts": ("part_[0-9]*.npz",)},  # and part_*.tmp.npz, being written
 }
 
 

@@ -18,6 +18,7 @@ try:
     from runout.cli import evaluate_commands  # noqa: F401
     from runout.cli import compare_commands  # noqa: F401
     from runout.cli import validate_commands  # noqa: F401
+    from runout.cli import hazard_commands  # noqa: F401
     from runout.cli.exits import EXIT_INTERRUPTED, run
     from runout.threads import choose_threads
 except KeyboardInterrupt:  # Ctrl-C while the command line loads: exit 130, not a traceback
