@@ -16,14 +16,13 @@ from runout.scene import Scene
 
 def save_exceedance(scene: Scene, x: np.ndarray, probability: np.ndarray, thresholds, path: Path) -> Path:
     """The scene's regions (metres, left axis) under P(thickness > h) along x (right axis)."""
-    fig = Figure(figsize=(10, 4.2))
+    fig = Figure(figsize=(10, max(2.5, 10 * scene.domain.height / scene.domain.width + 1.2)))
     ax = fig.add_subplot()
     names = scene.material_names
     for r in scene.regions:
         colour = GROUND_COLOUR if r.fixed else material_colour(names.index(r.material))
         ax.add_patch(PolygonPatch(np.asarray(r.polygon), closed=True, fc=colour, ec="k", lw=0.5, alpha=0.35))
     ax.set(xlim=(0, scene.domain.width), ylim=(0, scene.domain.height), xlabel="x (m)", ylabel="y (m)")
-    ax.set_aspect("equal", adjustable="box")
     curves = ax.twinx()
     for h, p in zip(thresholds, probability):
         curves.step(x, p, where="mid", lw=1.4, label=f"P(thickness > {h:g} m)")
