@@ -178,3 +178,15 @@ def check_rollout_memory(points: int, frames: int, device: str) -> None:
             f"--frames = {frames} with {points} points needs about {need / GIB:.1f} GiB of memory but this "
             f"machine has {have / GIB:.1f} GiB; ask for fewer frames."
         )
+
+
+@app.command()
+def average(
+    checkpoints: list[Path] = typer.Argument(..., help="Checkpoints of one GNS training run (e.g. its snapshots/step-*.pt)."),
+    out: Path = typer.Option(..., "--out", help="The averaged checkpoint to write (weights only, not resumable)."),
+) -> None:
+    """Average the weights of several checkpoints of one GNS training run into one model file (stochastic weight averaging); judge it with `runout evaluate heldout`."""
+    from runout.average import average_checkpoints
+
+    path = average_checkpoints(out, checkpoints)
+    typer.echo(f"{path}: the mean of {len(checkpoints)} checkpoints' weights")

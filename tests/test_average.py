@@ -1,6 +1,5 @@
-"""scripts/average_checkpoints.py: the mean of one run's checkpoints, loadable as a model."""
+"""`runout average`: the mean of one run's checkpoints, loadable as a model."""
 
-import importlib.util
 from pathlib import Path
 
 import torch
@@ -8,17 +7,10 @@ import torch
 from runout.contract import FeatureSchema
 from runout.gns.checkpoint import load_simulator, save_checkpoint
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from test_cli_exits import one_sentence, run
 
-REPO = Path(__file__).resolve().parents[1]
 TINY = NetworkConfig(latent=8, hidden=8, hidden_layers=1, message_passing_steps=1)
 STATS = Normalisation((0.0, -0.01), (0.02, 0.03), (0.0, -1e-3), (2e-3, 3e-3), 2.5e-3)
-
-
-def _script():
-    spec = importlib.util.spec_from_file_location("average_checkpoints", REPO / "scripts" / "average_checkpoints.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def _checkpoint(path: Path, seed: int, radius: float = 4.6, step: int = 100) -> Path:
@@ -27,10 +19,11 @@ def _checkpoint(path: Path, seed: int, radius: float = 4.6, step: int = 100) -> 
     return save_checkpoint(path, simulator, step=step)
 
 
-def test_the_average_is_the_parameterwise_mean_and_loads_as_a_model(tmp_path):
+def test_the_average_is_the_parameterwise_mean_and_loads_as_a_model(tmp_path, capsys):
     paths = [_checkpoint(tmp_path / f"s{k}.pt", seed=k, step=100 * (k + 1)) for k in range(3)]
     out = tmp_path / "mean.pt"
-    assert _script().main([str(out), *map(str, paths)]) == 0
+    code, err = run(["average", *paths, "--out", out], capsys)
+    assert code == 0, err
     mean = load_simulator(out)
     models = [load_simulator(p) for p in paths]
     for name, value in mean.state_dict().items():
@@ -44,9 +37,11 @@ def test_the_average_is_the_parameterwise_mean_and_loads_as_a_model(tmp_path):
 def test_checkpoints_of_different_runs_or_a_single_one_are_refused_with_exit_2(tmp_path, capsys):
     a = _checkpoint(tmp_path / "a.pt", seed=0)
     b = _checkpoint(tmp_path / "b.pt", seed=1, radius=9.2)
-    script = _script()
-    assert script.main([str(tmp_path / "out.pt"), str(a), str(b)]) == 2
-    assert "'radius' differs" in capsys.readouterr().err
-    assert script.main([str(tmp_path / "out.pt"), str(a)]) == 2
-    assert "at least 2" in capsys.readouterr().err
-    assert not (tmp_path / "out.pt").exists()
+    out = tmp_path / "out.pt"
+    code, err = run(["average", a, b, "--out", out], capsys)
+    assert code == 2 and one_sentence(err) and "'radius' differs" in err, err
+    code, err = run(["average", a, "--out", out], capsys)
+    assert code == 2 and one_sentence(err) and "at least 2" in err, err
+    code, err = run(["average", a, a, "--out", a], capsys)
+    assert code == 2 and one_sentence(err) and "one of the inputs" in err, err
+    assert not out.exists()

@@ -1,34 +1,44 @@
-"""Average the model weights of several checkpoints of one training run into one file.
-
-    python scripts/average_checkpoints.py OUT.pt runs/ft8-snap/step-80000.pt runs/ft8-snap/step-85000.pt ...
+"""`runout average`: the model weights of several checkpoints of one GNS training run averaged
+into one file (stochastic weight averaging over points of one run's path, which steadies a run
+whose rollouts swing from one validation to the next; whether it helps is judged by rollouts
+from rest, `runout evaluate heldout`).
 
 Each input's `model` entry (the weight average when the run had --ema) is read, the weights
 are averaged parameter by parameter with equal weights, and OUT is written as a weights-only
 checkpoint (no optimiser, not resumable) with the last input's normalisation, schema and
 settings and the step of the last input. The inputs must come from one run: the same network,
-schema, normalisation statistics and connectivity radius, else the script refuses with one
-sentence and exit code 2. Averaging points of one run's path several thousand steps apart
-(stochastic weight averaging) steadies a run whose rollouts swing from one validation to the
-next; whether it helps is judged by rollouts from rest (scripts/evaluate_model.py), as ever.
+schema, normalisation statistics and connectivity radius, else InputError.
 """
 
 from __future__ import annotations
 
-import argparse
-import sys
 from pathlib import Path
 
 import torch
 
 from runout.errors import InputError
 from runout.gns.checkpoint import read_checkpoint, save_checkpoint, simulator_from_checkpoint
+from runout.reading import file_to_read
 
 SAME = ("schema", "stats", "radius", "network")  # entries every input must share
 
 
-def average_checkpoints(out: Path, inputs: list[Path]) -> Path:
+def check_inputs(out: Path, inputs: list[Path]) -> None:
+    """InputError unless every input is a file, there are at least 2 and OUT is none of them
+    nor a folder. Reads nothing."""
+    for path in inputs:
+        file_to_read(path, "checkpoint")
     if len(inputs) < 2:
-        raise InputError(f"average_checkpoints: {len(inputs)} input checkpoint given; averaging needs at least 2.")
+        raise InputError(f"{len(inputs)} checkpoint given; averaging needs at least 2 of one run.")
+    if Path(out).is_dir():
+        raise InputError(f"--out {out} is a folder; name the checkpoint file to write, such as {Path(out) / 'mean.pt'}.")
+    if any(Path(out).resolve() == Path(p).resolve() for p in inputs):
+        raise InputError(f"--out {out} is one of the inputs; name a new file for the average.")
+
+
+def average_checkpoints(out: Path, inputs: list[Path]) -> Path:
+    """Write the mean of the inputs' weights to OUT (module docstring) and return its path."""
+    check_inputs(out, inputs)
     ckpts = [read_checkpoint(p) for p in inputs]
     first = ckpts[0]
     for path, ckpt in zip(inputs[1:], ckpts[1:]):
@@ -52,21 +62,3 @@ def _equal(a, b) -> bool:
     if isinstance(a, torch.Tensor) and isinstance(b, torch.Tensor):
         return a.shape == b.shape and bool(torch.equal(a, b))
     return a == b
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("out", type=Path, help="the averaged checkpoint to write")
-    parser.add_argument("inputs", type=Path, nargs="+", help="checkpoints of one run")
-    args = parser.parse_args(argv)
-    try:
-        path = average_checkpoints(args.out, args.inputs)
-    except InputError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(f"{path}: the mean of {len(args.inputs)} checkpoints' weights")
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
