@@ -23,7 +23,7 @@ continues from the cumulative step. Needs torch, numpy, scipy, matplotlib and tq
 To go on with the CPU campaign's model (8 m cells, 260 fine-tuning scenes, latent 64, 5
 message-passing steps), give its data settings: `--cell-size 8 --count 260` (the start's
 network size is taken from it); judge the result on 16 scenes from rest before it replaces
-models/slope.pt (scripts/evaluate_model.py).
+models/slope.pt (`runout evaluate heldout`).
 """
 
 from __future__ import annotations

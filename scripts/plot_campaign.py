@@ -2,7 +2,7 @@
 
     python scripts/plot_campaign.py docs/figures/campaign6_evaluations.csv docs/figures/campaign6_evaluations.png
 
-The CSV holds one row per file measured with `scripts/evaluate_model.py FILE --data data/ft8
+The CSV holds one row per file measured with `runout evaluate heldout FILE --data data/ft8
 --split valid` (16 held-out scenes rolled out from rest over 480 frames, against solver 6):
 its fine-tune step, the campaign's CPU-hours when the file was written (base stage included;
 a file written mid-chunk gets its share of the chunk by steps), the mean position error (m),

@@ -60,3 +60,28 @@ def test_the_scores_are_also_averaged_by_family_and_by_start(tmp_path):
     assert kinds["starts thrown"]["standing_still"]["position_error_m"] == pytest.approx(result["standing_still"]["per_scene"][2]["position_error_m"])
     assert kinds["family c"]["model"]["displacement_mpm_m"] == pytest.approx(
         (scenes[1]["displacement_mpm_m"] + scenes[2]["displacement_mpm_m"]) / 2)
+
+
+def test_the_command_scores_any_learned_engines_file_and_writes_metrics(tmp_path, capsys):
+    import json
+
+    from runout.cli import main
+    from runout.train import TrainConfig, train
+    from test_cli_exits import run
+    from test_gns_train import TINY
+    from test_gns_synthetic import write_dataset
+
+    data = write_dataset(tmp_path / "data", n_valid=2)
+    train(TrainConfig(data=data, out=tmp_path / "run", steps=2, network=TINY, valid_every=0, log_every=1,
+                      checkpoint_layers=False, progress=False))
+    out = tmp_path / "eval"
+    main([str(a) for a in ["evaluate", "heldout", tmp_path / "run" / "checkpoint.pt", "--data", data, "--split", "valid",
+                           "--limit", "2", "--mirrored", "--no-column", "--log", tmp_path / "run" / "log.jsonl", "--out", out]])
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["valid_split"]["model"]["scenes"] == 2 and "valid_split_mirrored" in metrics
+    assert metrics["curves"]["last_step"] == 2 and (out / "curves.png").is_file()
+    printed = capsys.readouterr().out
+    assert "2 valid scenes from rest: position error" in printed and "2 valid scenes mirrored from rest" in printed
+    assert "(standing still" in printed
+    code, err = run(["evaluate", "heldout", tmp_path / "run" / "checkpoint.pt", "--data", data, "--out", out], capsys)
+    assert code == 2 and "test.npz" in err  # the default split is test, which this dataset lacks

@@ -1,4 +1,5 @@
-"""`runout evaluate ...`: the paper's results sections as commands, for any GNS checkpoint.
+"""`runout evaluate ...`: the paper's results sections as commands, for any GNS checkpoint,
+and `runout evaluate heldout`, the held-out measure of any learned engine's checkpoint.
 
 Each study writes OUT/<study>/ (summary.json, CSV, figures); `runout evaluate report`
 turns them into docs/results.md. Scenes are filled at the model's point spacing for both
@@ -20,9 +21,10 @@ from runout.errors import InputError
 from runout.defaults import MPM_CACHE as DEFAULT_CACHE
 from runout.evaluate.cases import PAPER_CASE, ColumnGrid, SensitivityConfig
 from runout.scene import EXAMPLES
+from runout.scene.validation import MAX_FRAMES
 
 evaluate_app = typer.Typer(
-    help="Measure a GNS model against the MPM: the paper's column, slope, diagnostics, inverse and data-size studies.",
+    help="Measure a learned model against the MPM: held-out scenes from rest, and the paper's column, slope, diagnostics, inverse and data-size studies.",
     no_args_is_help=True,
 )
 app.add_typer(evaluate_app, name="evaluate")
@@ -233,6 +235,49 @@ def sensitivity(
         typer.echo(f"{r['budget']:>6} N = {r['size']:>5}: median rollout MSE {r['median_mse_m2']:.4g} m² "
                    f"[{r['p25_mse_m2']:.4g}, {r['p75_mse_m2']:.4g}]")
     typer.echo(f"wrote {out / 'sensitivity'}/rollouts.csv, summary.json and figures")
+
+
+@evaluate_app.command()
+def heldout(
+    model: Path = typer.Argument(..., help="Learned-engine checkpoint (.pt): a GNS or a neural MPM, the file says which."),
+    data: Path = typer.Option(..., "--data", help="Dataset folder with metadata.json and the held-out split (test.npz or valid.npz)."),
+    out: Path = typer.Option(..., "--out", help="Results folder: metrics.json, column.png (and curves.png with --log)."),
+    split: str = typer.Option("test", "--split", help="Held-out split: test, or valid (the scenes training runs are judged on)."),
+    limit: int = typer.Option(16, "--limit", help="Roll out the first LIMIT scenes of the split (at least 16 for a verdict)."),
+    mirrored: bool = typer.Option(False, "--mirrored", help="Also roll out the same scenes reflected left-right (the families' slopes all fail to the right; a model that learned the physics scores both alike)."),
+    column: Path = typer.Option(EXAMPLES / "column_a1.toml", "--column", help="Column-collapse scene run by the MPM and the model from rest, filled at the model's point spacing."),
+    no_column: bool = typer.Option(False, "--no-column", help="Skip the column run (e.g. for a friction-only base model)."),
+    frames: int = typer.Option(240, "--frames", help="Frames of the column runs."),
+    log: Path = typer.Option(None, "--log", help="The training run's log.jsonl: also draw OUT/curves.png from it."),
+    force: bool = FORCE,
+) -> None:
+    """Held-out scenes from rest (position error, fronts, extent, displacement, by family and start, beside standing still) and a column collapse against the MPM, for any learned engine; writes OUT/metrics.json."""
+    from runout.cli.gns_commands import check_range
+    from runout.evaluate.heldout_run import WRITES, read_log, run_heldout
+    from runout.learned.load import load_engine
+    from runout.outputs import check_folder, claim
+    from runout.reading import file_to_read, folder_to_read
+    from runout.scene import load_scene
+
+    if split not in ("test", "valid"):
+        raise InputError(f"--split {split!r} must be test or valid.")
+    check_range("--limit", limit, 1, 1_000_000)
+    check_range("--frames", frames, 1, MAX_FRAMES)
+    file_to_read(model, "model file")
+    folder_to_read(data, "dataset folder")
+    file_to_read(data / f"{split}.npz", f"{split} split of the dataset")
+    if not no_column:
+        load_scene(column)
+    if log is not None:
+        read_log(log)
+    folder = check_folder(out, "evaluate heldout", WRITES, force=force,
+                          inputs={"MODEL": model, "--data": data, "--column": column, "--log": log})
+    engine = load_engine(model)
+    if not no_column:
+        engine.check_frames(frames, "--frames")
+    claim(folder)
+    run_heldout(engine, model, data, out, split, limit, mirrored, None if no_column else column, frames, log, typer.echo)
+    typer.echo(f"wrote {out / 'metrics.json'}")
 
 
 @evaluate_app.command()
