@@ -25,7 +25,7 @@ class TrainConfig:
     lr_init: float = 1e-4
     lr_final: float = 1e-6
     lr_decay_steps: float = 5e6
-    noise: float = 0.1  # velocity noise std as a fraction of the data's velocity std (round 1 of the recipe pilots: at 0.3 and 0.6 a model never starts from rest)
+    noise: float = 0.1  # velocity noise std as a fraction of the data's velocity std
     rest_windows: bool = True  # also train on windows that start before frame 0 (a scene at rest)
     exact_rest: bool = False  # no noise on the held copies of frame 0 in a window (a rollout starts from them exactly)
     static_tail: int | None = None  # frames kept after a simulation's flow stops (None: all)
@@ -47,7 +47,7 @@ class TrainConfig:
     checkpoint_layers: bool = True  # recompute processor steps in backward (less memory)
     bf16: bool = False  # autocast the network to bfloat16
     lr_step_offset: int = 0  # learning-rate schedule continues from the base model's step
-    max_hours: float = 0.0  # wall-clock limit of this run (one chunk of a campaign); 0: none
+    max_hours: float = 0.0  # wall-clock limit of this run; 0: none
     radius: float | None = None  # connectivity radius in m (None: the dataset's default)
     frame_stride: int | None = None  # dataset frames per GNS step (None: 1, or the checkpoint's on --resume / --init)
     pushforward: int = 0  # each step first unrolls n ~ U{0..pushforward} steps without gradient (0: one-step)
@@ -82,15 +82,12 @@ SETTING_LIMITS = {
 OPTION_NAMES = {"lr_init": "--lr"}  # the `runout train` options not named --field-name
 
 
-# The training recipe the pilots chose (docs/training.md, rounds 8-12), as TrainConfig fields:
-# a learning rate for budgets of tens of thousands of steps, noise 0.01 of the velocity std,
-# no noise on the scene at rest, pushforward 2, a weight average, activations kept, the
-# onset of motion drawn in three phases (the start from rest first, then the decelerations),
-# and the overburden input (round 12: at 4 CPU-h, fronts 39 % against 45 %, extent 6.0 %
-# against 10.6 %, columns 31 % against 69 %, the position error equal); and, from fine-tune
-# chunk 7, half the windows mirrored left-right: every slope of families b and c fails to the
-# right, and chunk 6's model, on the 16 validation scenes mirrored, was 15.8 m off instead of
-# 9.29 m (family c 38.7 m instead of 16.6), the four-layer slope's left flank 52 % short.
+# The training recipe, as TrainConfig fields: a learning rate and decay for budgets of tens of
+# thousands of steps, noise 0.01 of the velocity std, no noise on the scene at rest, pushforward
+# 2, a weight average, activations kept (no recomputation), the onset of motion drawn in three
+# phases (the start from rest first, then the decelerations), the overburden input, and half the
+# windows mirrored left-right (the physics has no side; the slope families all fail to the
+# right). docs/training.md gives the pilots and chunks that chose each setting and their figures.
 # The campaign's scripts (scripts/cpu_chunk.sh, scripts/gpu_session.py) train with it.
 RECIPE = {
     "lr_init": 4e-4, "lr_decay_steps": 200_000.0, "noise": 0.01, "exact_rest": True, "pushforward": 2,

@@ -32,7 +32,7 @@ def train(
     batch_size: int = typer.Option(TrainConfig.batch_size, "--batch-size", help="Graphs per process and step."),
     lr: float = typer.Option(TrainConfig.lr_init, option_name("lr_init"), help=f"Initial learning rate; decays as (lr - {TrainConfig.lr_final:g}) 0.1^(step / D) + {TrainConfig.lr_final:g}."),
     lr_decay_steps: float = typer.Option(TrainConfig.lr_decay_steps, "--lr-decay-steps", help="D: steps over which the learning rate falls tenfold (paper: 5e6; fit it to the budget)."),
-    max_hours: float = typer.Option(TrainConfig.max_hours, "--max-hours", help="Wall-clock hours for this run (one chunk); then save and stop, exit 0 (0: no limit)."),
+    max_hours: float = typer.Option(TrainConfig.max_hours, "--max-hours", help="Wall-clock hours for this run; then save and stop, exit 0 (0: no limit)."),
     radius: float = typer.Option(TrainConfig.radius, "--radius", help="Connectivity radius in m (default: the dataset's, 2.3 point spacings); new runs only."),
     frame_stride: int = typer.Option(TrainConfig.frame_stride, "--frame-stride", help="Dataset frames per GNS step, 1-16 (default 1; --resume keeps the checkpoint's, --init keeps it unless this asks for another)."),
     pushforward: int = typer.Option(TrainConfig.pushforward, "--pushforward", help="Pushforward training, N = 0-10: each step rolls the model out n steps without gradient, n uniform in 0..N per step, and trains on the window it made (0: one-step training)."),
