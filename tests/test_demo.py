@@ -114,19 +114,19 @@ def test_quick_demo_leads_with_the_mpm_and_prints_its_pictures_last(tmp_path):
 def test_the_demo_reads_its_model_from_runout_models(tmp_path, monkeypatch):
     models = tmp_path / "models"
     models.mkdir()
-    shutil.copyfile(tiny_model(tmp_path / "model", width=2, radius=11.5), models / "slope.pt")
+    shutil.copyfile(tiny_model(tmp_path / "model", width=2, radius=11.5), models / "neural-mpm.pt")
     monkeypatch.setenv("RUNOUT_MODELS", str(models))
     result = CliRunner().invoke(app, ["demo", "--out", str(tmp_path / "demo"), "--quick"])
     assert result.exit_code == 0, result.output
-    assert f"GNS in {models / 'slope.pt'}" in result.output
+    assert f"GNS in {models / 'neural-mpm.pt'}" in result.output  # the file names its engine
 
 
 def test_runout_models_without_the_model_is_one_sentence(tmp_path, monkeypatch):
     monkeypatch.setenv("RUNOUT_MODELS", str(tmp_path))
     result = CliRunner().invoke(app, ["demo", "--out", str(tmp_path / "demo"), "--quick"])
     assert isinstance(result.exception, InputError)
-    assert str(result.exception) == (f"RUNOUT_MODELS={tmp_path}: slope.pt is not in that folder; set RUNOUT_MODELS to a "
-                                     "folder that holds slope.pt, unset it to use the installed model, or pass --model FILE.")
+    assert str(result.exception) == (f"RUNOUT_MODELS={tmp_path}: neural-mpm.pt is not in that folder; set RUNOUT_MODELS to a "
+                                     "folder that holds neural-mpm.pt, unset it to use the installed model, or pass --model FILE.")
     assert not (tmp_path / "demo").exists()
 
 

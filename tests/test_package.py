@@ -46,7 +46,7 @@ def _source_copy(folder: Path) -> Path:
     shutil.copytree(REPO / "src", folder / "src", symlinks=True,
                     ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
     (folder / "models").mkdir()
-    for name in ("slope.pt", "README.md"):
+    for name in ("slope.pt", "neural-mpm.pt", "README.md"):
         shutil.copy(REPO / "models" / name, folder / "models" / name)
     return folder
 
@@ -62,15 +62,17 @@ def test_the_installed_wheel_runs_the_demo_from_outside_the_checkout(tmp_path):
     (wheel,) = wheels.glob("runout-*.whl")
     subprocess.run([*pip, "install", "--no-deps", "--target", str(site), str(wheel)], check=True, capture_output=True)
     installed = site / "runout"
-    assert (installed / "models" / "slope.pt").stat().st_size == (REPO / "models" / "slope.pt").stat().st_size
+    for name in ("slope.pt", "neural-mpm.pt"):
+        assert (installed / "models" / name).stat().st_size == (REPO / "models" / name).stat().st_size
     assert (installed / "examples" / "four_layer_slope.toml").is_file()
     assert not (installed / "models" / "slope-train.pt").exists()  # resume files stay in the checkout
+    assert not (installed / "models" / "neural-mpm-train.pt").exists()
 
     elsewhere.mkdir()
     result = subprocess.run([sys.executable, "-m", "runout", "demo", "--out", "d", "--quick"], capture_output=True,
                             text=True, cwd=elsewhere, env=_env(site))
     assert result.returncode == 0, result.stderr
-    assert f"GNS in {installed / 'models' / 'slope.pt'}" in result.stdout  # the installed copy, not the checkout's
+    assert f"neural MPM in {installed / 'models' / 'neural-mpm.pt'}" in result.stdout  # the installed copy, not the checkout's
     assert (elsewhere / "d" / "1_slope_mpm" / "slope.png").stat().st_size > 0
     assert (elsewhere / "d" / "3_slope_learned" / "final.png").stat().st_size > 0
     assert result.stderr == ""  # quiet: no CUDA-driver warning from Warp, no library warnings

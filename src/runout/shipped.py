@@ -15,7 +15,7 @@ from pathlib import Path
 from runout.errors import InputError
 
 MODELS_VARIABLE = "RUNOUT_MODELS"
-SHIPPED_MODEL = "slope.pt"  # the fine-tuned (phi, c) GNS: models/README.md
+SHIPPED_MODEL = "neural-mpm.pt"  # the learned engine that measures better today (the neural MPM): models/README.md
 INSTALLED = Path(__file__).resolve().parent / "models"
 
 

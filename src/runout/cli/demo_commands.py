@@ -17,7 +17,7 @@ def demo(
     out: Path = typer.Option(Path("out/demo"), "--out", help="Output folder (created)."),
     model: Path = typer.Option(
         None, "--model", show_default=False,
-        help="Learned engine's checkpoint (GNS or neural MPM) with a cohesion input. Default: slope.pt in the "
+        help="Learned engine's checkpoint (GNS or neural MPM) with a cohesion input. Default: neural-mpm.pt in the "
              "folder $RUNOUT_MODELS names, else the model installed with runout."),
     examples: Path = typer.Option(EXAMPLES, "--examples", help="Folder holding four_layer_slope.toml and small_dam.toml."),
     quick: bool = typer.Option(False, "--quick", hidden=True, help="Few frames and iterations: a wiring check for tests."),
