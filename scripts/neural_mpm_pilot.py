@@ -3,6 +3,7 @@ under a CPU-time budget, then judge it from rest on held-out scenes.
 
     python scripts/neural_mpm_pilot.py --out runs/nmpm-p1 --steps 11000 --max-cpu-hours 1
     python scripts/neural_mpm_pilot.py --out runs/nmpm-p1 --resume --max-cpu-hours 4
+    python scripts/neural_mpm_pilot.py --data data/ft8,data/col8 --data-shares 3,1 --out runs/nmpm-cols --calls 3
 
 Engine settings (cell size, m, history, widths) apply to a new run only; a resumed run keeps
 its checkpoint's.
@@ -16,7 +17,7 @@ from dataclasses import fields
 from pathlib import Path
 
 from runout.neural_mpm.engine import NeuralMPMConfig
-from runout.neural_mpm.training import TrainSettings, train
+from runout.neural_mpm.training import TrainSettings, datasets, train
 
 
 def main() -> None:
@@ -36,7 +37,7 @@ def main() -> None:
     settings = TrainSettings(**{f.name: getattr(a, f.name) for f in fields(TrainSettings)})
     config = NeuralMPMConfig(cell_size=a.cell_size, history=a.history, frames_per_call=a.frames_per_call,
                              widths=tuple(int(w) for w in a.widths.split(",")),
-                             point_spacing=_spacing(Path(settings.data)))
+                             point_spacing=_spacing(Path(datasets(settings)[0])))
     train(settings, config, resume=a.resume)
 
 

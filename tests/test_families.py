@@ -9,8 +9,8 @@ from typer.testing import CliRunner
 from runout.cli.app import app
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.families import (
-    BLOCK_COUNT, BLOCK_SIDE, BLOCK_SPEED, DOMAIN_HEIGHT, GROUND_TOP, STAGES, family_sequence, sample,
-    sample_for_index, vertex_ranges,
+    BLOCK_COUNT, BLOCK_SIDE, BLOCK_SPEED, COLUMN_STUDY_CLEARANCE, COLUMN_STUDY_GEOMETRIES, DOMAIN_HEIGHT, GROUND_TOP,
+    STAGES, family_sequence, sample, sample_for_index, vertex_ranges,
 )
 from runout.scene import (
     edges_cross, fill_points, points_in_polygon, polygon_area, polygon_self_intersects, polygons_overlap,
@@ -63,8 +63,8 @@ def test_samples_stay_in_ranges_and_tile_without_gaps(stage, family):
     table = vertex_ranges(family, st.width)
     for s in _samples(stage, family):
         scene = s.scene
-        assert scene.domain.width == st.width and scene.domain.height == DOMAIN_HEIGHT
-        for label, (x, y) in s.vertices.items():
+        assert scene.domain.width == st.width and scene.domain.height == st.height
+        for label, (x, y) in s.vertices.items() if st.column_base is None else ():
             _assert_in(x, table[label][0], f"{family}{label}.x")
             _assert_in(y, table[label][1], f"{family}{label}.y")
         for m in scene.materials.values():
@@ -78,7 +78,7 @@ def test_samples_stay_in_ranges_and_tile_without_gaps(stage, family):
         for p in polys:
             assert polygon_area(p) > 0 and not polygon_self_intersects(p)
             assert p[:, 0].min() >= 0 and p[:, 0].max() <= st.width
-            assert p[:, 1].min() >= 0 and p[:, 1].max() <= DOMAIN_HEIGHT
+            assert p[:, 1].min() >= 0 and p[:, 1].max() <= st.height
         _assert_disjoint(polys, st.width)
         soil = [r for r in scene.regions if not r.fixed]
         assert len({r.material for r in soil}) == len(soil), "each soil region has its own material"
@@ -122,6 +122,29 @@ def test_columns_stand_against_the_left_wall_on_the_base():
         assert p[:, 0].min() == 0 and p[:, 1].min() == 0
         _assert_in(np.ptp(p[:, 0]), (50, 100), "column width")
         _assert_in(np.ptp(p[:, 1]), (50, 100), "column height")
+
+
+def test_the_columns_stage_spans_the_column_study_but_leaves_its_cases_out():
+    """The `columns` stage covers the paper's column grid (phi 0-45 deg, c 10-70 kPa, a 0.5-2,
+    its 1000 x 208 m domain) and never draws one of the study's three geometries."""
+    st = STAGES["columns"]
+    assert (st.width, st.height) == (1000.0, 208.0) and st.friction_range == (0.0, 45.0) and st.cohesion_range == (5.0, 75.0)
+    sizes, phis, cs = [], [], []
+    for s in _samples("columns", "column", n=400):
+        (region,) = s.scene.regions
+        p = np.asarray(region.polygon)
+        assert p[:, 0].min() == 0 and p[:, 1].min() == 0
+        base, height = np.ptp(p[:, 0]), np.ptp(p[:, 1])
+        _assert_in(base, st.column_base, "column base")
+        _assert_in(height / base, st.column_aspect, "column aspect")
+        assert height <= st.height - 8.0
+        for b, h in COLUMN_STUDY_GEOMETRIES:
+            assert abs(base - b) > COLUMN_STUDY_CLEARANCE or abs(height - h) > COLUMN_STUDY_CLEARANCE
+        (m,) = s.scene.materials.values()
+        sizes.append((base, height)), phis.append(m.friction_angle), cs.append(m.cohesion)
+    aspects = np.array([h / b for b, h in sizes])
+    assert aspects.min() < 0.5 and aspects.max() > 2.0  # the study's a = 0.5 and 2 lie inside the drawn range
+    assert min(phis) < 2.0 and max(phis) > 43.0 and min(cs) < 10.0 and max(cs) > 70.0
 
 
 @pytest.mark.parametrize("stage,family", CASES)

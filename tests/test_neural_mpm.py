@@ -205,3 +205,44 @@ def test_a_shipped_file_holds_the_engine_and_the_resume_file_the_run(dataset, tm
     loaded = load_engine(tmp_path / "shipped.pt")
     for (name, a), (_, b) in zip(engine.state_dict().items(), loaded.state_dict().items()):
         assert torch.equal(a, b), name
+
+
+def _shifted_dataset(column, folder: Path, width: float) -> Path:
+    """The column run in a domain `width` m wide (the same points, the right wall moved)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    sim = (column.positions, column.particle_type, column.material_features(2))
+    for split in ("train", "valid"):
+        write_simulations(folder / f"{split}.npz", [sim, sim])
+    bounds = [[0.0, width], [0.0, float(column.bounds[1][1])]]
+    meta = statistics([sim], radius=9.2, bounds=bounds, dt=column.frame_dt)
+    write_metadata(folder / "metadata.json", {**meta, "sequence_length": column.n_frames, "cell_size": 8.0,
+                                              "material_features": ["tan_phi", "c_over_100kPa"]})
+    return folder
+
+
+def test_two_datasets_train_together_each_batch_from_one_domain(column, tmp_path):
+    from runout.neural_mpm.training import training_ranges
+    from runout.neural_mpm.windows import WindowSampler
+
+    narrow = _shifted_dataset(column, tmp_path / "narrow", 96.0)
+    wide = _shifted_dataset(column, tmp_path / "wide", 200.0)
+    sampler = WindowSampler.from_splits([narrow, wide], "train", history=2, material_width=2, shares=[3, 1])
+    widths = []
+    for n in range(400):
+        w = sampler.draw(4, 8, 0.1, 0.5, torch.Generator().manual_seed(n))
+        domain = w.points.bounds[:, 0, 1]
+        assert torch.all(domain == domain[0])  # one domain per batch: the grid stays its size
+        soil = ~w.points.fixed
+        # mirrored windows are mirrored in their own domain: every point stays inside it
+        assert float(w.x[soil, 0].max()) <= float(domain[0]) and float(w.targets[:, soil, 0].max()) <= float(domain[0])
+        widths.append(float(domain[0]))
+    wide_share = np.mean(np.array(widths) == 200.0)
+    assert 0.19 < wide_share < 0.31  # shares 3 : 1 -> a quarter of the batches (400 draws: +-0.05 is 2.3 sigma)
+    only_narrow = WindowSampler.from_splits([narrow, wide], "train", 2, 2, shares=[1, 0])
+    assert all(float(only_narrow.draw(4, 8, 0.1, 0.5, torch.Generator().manual_seed(n)).points.bounds[0, 0, 1]) == 96.0
+               for n in range(50))
+    ranges = training_ranges(f"{narrow},{wide}", TINY)
+    assert ranges["domain_m"] == [200.0, 48.0]  # the largest domain, side by side
+    assert ranges["friction_angle_deg"] == pytest.approx([20.0, 20.0], abs=1e-4)
+    assert "narrow" in ranges["source"] and "wide" in ranges["source"]
+

@@ -2,8 +2,11 @@
 
 Families: (a) square blocks thrown over uneven ground, (b) steep three-layer slopes,
 (c) gentle three-layer slopes, (d) zoned dams on a foundation, and granular column
-collapses. Two stages: `base` (phi 10-40 deg, c = 0, 300 x 152 m, families a-d) and
-`finetune` (phi 3-35 deg, c 10-60 kPa, 400 x 152 m, families b-d and columns).
+collapses. Three stages: `base` (phi 10-40 deg, c = 0, 300 x 152 m, families a-d),
+`finetune` (phi 3-35 deg, c 10-60 kPa, 400 x 152 m, families b-d and columns) and `columns`
+(columns alone over the range of the paper's column study, section 5.1.1: phi 0-45 deg,
+c 5-75 kPa, 1000 x 208 m like its cases, base 60-220 m, aspect H0 / L0 0.3-2.5 drawn
+log-uniformly; the study's own 75 cases stay out, see COLUMN_STUDY_GEOMETRIES).
 
 Every vertex, size, velocity and property is drawn uniformly from its range
 (`vertex_ranges`). A draw whose layers would cross, overhang or be thinner than
@@ -23,7 +26,10 @@ from runout.errors import InputError
 from runout.outputs import check_folder, check_picture, claim
 from runout.scene import Domain, Material, Region, Scene, TimeSpec, polygon_area, polygon_self_intersects, save_scene
 
-DOMAIN_HEIGHT = 152.0  # m, both stages
+DOMAIN_HEIGHT = 152.0  # m, the base and finetune stages
+COLUMN_DOMAIN = (1000.0, 208.0)  # m, the paper's column study (examples/column_a*.toml)
+COLUMN_STUDY_GEOMETRIES = ((200.0, 100.0), (150.0, 150.0), (100.0, 200.0))  # (L0, H0) m of its a = 0.5, 1, 2
+COLUMN_STUDY_CLEARANCE = 5.0  # m: a `columns` draw within this of a study geometry in both sides is redrawn
 GROUND_TOP = 4.0  # m, top of the fixed ground strip under the layered slopes (b, c)
 MIN_THICKNESS = 4.0  # m, thinnest layer or gap allowed (two point spacings at 4 m cells)
 HEADROOM = 4.0  # m, free space kept under the domain's top wall
@@ -54,12 +60,19 @@ class Stage:
     cohesion_range: tuple[float, float] | None  # kPa; None = cohesionless
     mix: dict[str, int]  # family -> relative share of the dataset
     feature_width: int  # GNS material features: 1 = [tan phi], 2 = [tan phi, c / 100 kPa]
+    height: float = DOMAIN_HEIGHT  # m, domain height
+    column_base: Range | None = None  # m: L0 of a column; None: Table A.1's column sizes
+    column_aspect: Range | None = None  # H0 / L0, drawn log-uniformly
 
 
 STAGES = {
     "base": Stage("base", 0, 300.0, (10.0, 40.0), None, {"a": 500, "b": 500, "c": 500, "d": 500}, 1),
     "finetune": Stage(
         "finetune", 1, 400.0, (3.0, 35.0), (10.0, 60.0), {"b": 250, "c": 250, "d": 500, "column": 27}, 2
+    ),
+    "columns": Stage(
+        "columns", 2, COLUMN_DOMAIN[0], (0.0, 45.0), (5.0, 75.0), {"column": 1}, 2, height=COLUMN_DOMAIN[1],
+        column_base=(60.0, 220.0), column_aspect=(0.3, 2.5),
     ),
 }
 
@@ -168,7 +181,7 @@ def _scene(stage: Stage, soil: list[Region], fixed: list[Region], rng, name: str
             name_k, friction_angle=phi, cohesion=c, youngs_modulus=SOIL_E, poisson_ratio=POISSON, density=DENSITY
         )
         regions.append(replace(r, material=name_k))
-    domain = Domain(width=stage.width, height=DOMAIN_HEIGHT)
+    domain = Domain(width=stage.width, height=stage.height)
     return Scene(domain, materials, tuple(regions), TimeSpec(), name)
 
 
@@ -312,7 +325,7 @@ def _dam(stage: Stage, rng):
         return (x, float(np.interp(x, found[:, 0], found[:, 1])) + h)
 
     p8, p9, p10, p11 = (lift(k) for k in ("[8]", "[9]", "[10]", "[11]"))
-    if max(p10[1], p11[1]) > DOMAIN_HEIGHT - HEADROOM:
+    if max(p10[1], p11[1]) > stage.height - HEADROOM:
         return None
     b0, b1, b2, b3 = (lift(k) for k in ("[0]", "[1]", "[2]", "[3]"))
     zones = [
@@ -355,9 +368,25 @@ def _thinnest(quad: np.ndarray) -> float:
 
 
 def _column(stage: Stage, rng):
-    v = _draw_vertices(rng, "column", stage.width)
+    if stage.column_base is None:
+        v = _draw_vertices(rng, "column", stage.width)
+    else:
+        base = _uniform(rng, stage.column_base)
+        aspect = float(np.exp(rng.uniform(*np.log(stage.column_aspect))))
+        v = {"size": (base, aspect * base)}
+        if not _column_allowed(stage, *v["size"]):
+            return None
     w, h = v["size"]
     return v, [_region([(0.0, 0.0), (w, 0.0), (w, h), (0.0, h)])], []
+
+
+def _column_allowed(stage: Stage, base: float, height: float) -> bool:
+    """A `columns` draw fits under the top wall and is none of the column study's own
+    geometries (within COLUMN_STUDY_CLEARANCE m in both sides)."""
+    if height > stage.height - HEADROOM - MIN_THICKNESS:
+        return False
+    return all(abs(base - b) > COLUMN_STUDY_CLEARANCE or abs(height - h) > COLUMN_STUDY_CLEARANCE
+               for b, h in COLUMN_STUDY_GEOMETRIES)
 
 
 def draw_family(

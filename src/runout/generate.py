@@ -31,7 +31,7 @@ from runout import checks
 from runout.contract import MATERIAL_FEATURE_NAMES, FeatureSchema, radius_for_spacing, spacing_for_cells
 from runout.dataset import SPLITS
 from runout.errors import InputError, RunFailed
-from runout.families import BLOCK_SIDE, BLOCK_SPEED, DOMAIN_HEIGHT, STAGES, family_sequence, sample_for_index, vertex_ranges
+from runout.families import BLOCK_SIDE, BLOCK_SPEED, STAGES, family_sequence, sample_for_index, vertex_ranges
 from runout.scene import MAX_FRAMES, Scene, TimeSpec, save_scene
 from runout.npz import SafeNpz, numeric
 from runout.simfiles import Moments, Simulation, check_simulation, write_metadata, write_simulations
@@ -275,7 +275,7 @@ def write_dataset(config: GenerateConfig, part_dirs: list[Path], out: Path) -> N
             sims = _accumulate(sims, moments)
         write_simulations(out / f"{name}.npz", sims, compress=False)
     meta = moments.metadata(
-        bounds=[[0.0, stage.width], [0.0, DOMAIN_HEIGHT]], radius=radius_for_spacing(spacing_for_cells(config.cell_size)),
+        bounds=[[0.0, stage.width], [0.0, stage.height]], radius=radius_for_spacing(spacing_for_cells(config.cell_size)),
         dt=TimeSpec().frame_dt,
     )
     families = family_sequence(stage, config.count)
@@ -355,8 +355,11 @@ def _ranges(stage) -> dict:
     return {
         "friction_angle_deg": list(stage.friction_range),
         "cohesion_kpa": list(stage.cohesion_range) if stage.cohesion_range else None,
-        "domain_m": [stage.width, DOMAIN_HEIGHT],
+        "domain_m": [stage.width, stage.height],
         "block_side_m": list(BLOCK_SIDE),
         "block_velocity_m_per_s": list(BLOCK_SPEED),
-        "vertices_m": {f: vertex_ranges(f, stage.width) for f in stage.mix},
+        "vertices_m": {f: vertex_ranges(f, stage.width) for f in stage.mix
+                       if not (f == "column" and stage.column_base is not None)},
+        **({"column_base_m": list(stage.column_base), "column_aspect": list(stage.column_aspect)}
+           if stage.column_base is not None else {}),
     }

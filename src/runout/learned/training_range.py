@@ -56,6 +56,29 @@ def measure(materials, particle_types, meta: dict, radius: float, source: str) -
     }
 
 
+def union(parts: list[dict]) -> dict:
+    """The ranges of several datasets trained together (`measure` of each): each range's
+    extremes, the largest domain side by side, one point spacing (they must share it)."""
+    if len(parts) == 1:
+        return parts[0]
+    spacings = {p["point_spacing_m"] for p in parts}
+    if len(spacings) > 1:
+        raise ValueError(f"datasets trained together must share their point spacing, not {sorted(spacings)} m")
+
+    def span(key):
+        known = [p[key] for p in parts if p[key] is not None]
+        return [min(k[0] for k in known), max(k[1] for k in known)] if known else None
+
+    return {
+        "friction_angle_deg": span("friction_angle_deg"),
+        "cohesion_kpa": span("cohesion_kpa"),
+        "domain_m": [max(p["domain_m"][0] for p in parts), max(p["domain_m"][1] for p in parts)],
+        "point_spacing_m": spacings.pop(),
+        "materials_per_scene": span("materials_per_scene"),
+        "source": " + ".join(p["source"] for p in parts),
+    }
+
+
 def point_spacing(traj: Trajectory) -> float | None:
     """The lattice spacing of a trajectory's first frame (m): the median gap between
     distinct point x coordinates."""

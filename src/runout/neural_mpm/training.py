@@ -25,6 +25,7 @@ import torch
 from tqdm.auto import tqdm
 
 from runout.defaults import PARTICLE_TYPE_KINEMATIC, PARTICLE_TYPE_SOIL
+from runout.errors import InputError
 from runout.neural_mpm.checkpoint import read_checkpoint, save_checkpoint
 from runout.neural_mpm.engine import NeuralMPM, NeuralMPMConfig
 from runout.neural_mpm.windows import WindowSampler
@@ -36,7 +37,8 @@ LOG = "train.log.jsonl"
 
 @dataclass(frozen=True)
 class TrainSettings:
-    data: str = "data/ft8"
+    data: str = "data/ft8"  # dataset folder, or several joined by commas (the first one's valid split is the measure)
+    data_shares: str | None = None  # the part of the batches from each dataset, e.g. "3,1" (default: by their scenes)
     out: str = "runs/neural-mpm"
     steps: int = 20_000
     batch_size: int = 8
@@ -124,6 +126,7 @@ class Run:
     best: float = math.inf
     cpu_before: float = 0.0
     losses: list = field(default_factory=list)
+    extra: dict = field(default_factory=dict)  # dataset -> held-out scenes of the other datasets (logged, not the measure)
 
     def __post_init__(self):
         self._t_wall, self._t_cpu, self._t_log = time.monotonic(), time.process_time(), time.monotonic()
@@ -134,7 +137,8 @@ class Run:
         out.mkdir(parents=True, exist_ok=True)
         state = read_checkpoint(out / CHECKPOINT) if resume and (out / CHECKPOINT).is_file() else None
         config = NeuralMPMConfig.from_dict(state["config"]) if state is not None else config or NeuralMPMConfig()
-        sampler = WindowSampler.from_split(settings.data, "train", config.history, config.material_width)
+        sampler = WindowSampler.from_splits(datasets(settings), "train", config.history, config.material_width,
+                                            shares(settings))
         if config.velocity_scale <= 0:  # a new run: the unit of velocity from its data
             config = replace(config, velocity_scale=sampler.velocity_statistics()["scale"])
         with torch.random.fork_rng():  # the initial weights follow the run's seed
@@ -142,7 +146,7 @@ class Run:
             engine = NeuralMPM(config)
         optimizer = torch.optim.Adam(engine.parameters(), lr=settings.lr)
         engine.data_ranges = _ranges(settings, sampler) if state is None else state.get("data_ranges")
-        run = cls(settings, engine, optimizer, sampler, _heldout(settings), RunLog(out))
+        run = cls(settings, engine, optimizer, sampler, _heldout(settings), RunLog(out), extra=_heldout_extra(settings))
         if state is not None:
             engine.load_state_dict(state["model"])
             optimizer.load_state_dict(state["optimizer"])
@@ -183,6 +187,9 @@ class Run:
         """The held-out scenes from rest; best.pt keeps the best so far."""
         result = evaluate(self.engine, self.truths)
         self.log.write(event="valid", step=self.step, cpu_hours=self.cpu_used() / 3600, **_headline(result))
+        for data, truths in self.extra.items():
+            self.log.write(event="valid", data=data, step=self.step, cpu_hours=self.cpu_used() / 3600,
+                           **_headline(evaluate(self.engine, truths)))
         if result["position_error_m"] < self.best:
             self.best = result["position_error_m"]
             self.save(BEST)
@@ -192,26 +199,58 @@ class Run:
         save_checkpoint(Path(self.settings.out) / name, self.engine, **state)
 
 
+def datasets(settings: TrainSettings) -> list[str]:
+    """The dataset folders of a run, the measure's first."""
+    return [d.strip() for d in settings.data.split(",") if d.strip()]
+
+
+def shares(settings: TrainSettings) -> list[float] | None:
+    if settings.data_shares is None:
+        return None
+    try:
+        return [float(v) for v in settings.data_shares.split(",")]
+    except ValueError:
+        raise InputError(f"--data-shares {settings.data_shares!r} must be numbers joined by commas, one per dataset "
+                         "(e.g. 3,1).") from None
+
+
 def training_ranges(data: str | Path, config: NeuralMPMConfig | None = None) -> dict:
-    """What an engine trained on DATA/train.npz was trained on (runout.learned.training_range)."""
+    """What an engine trained on DATA/train.npz (folders joined by commas) was trained on
+    (runout.learned.training_range)."""
     config = config or NeuralMPMConfig()
-    sampler = WindowSampler.from_split(data, "train", config.history, config.material_width)
-    return _ranges(TrainSettings(data=str(data)), sampler)
+    settings = TrainSettings(data=str(data))
+    sampler = WindowSampler.from_splits(datasets(settings), "train", config.history, config.material_width)
+    return _ranges(settings, sampler)
 
 
 def _ranges(settings: TrainSettings, sampler: WindowSampler) -> dict:
-    """What the engine is trained on (runout.learned.training_range), with the spacing of its points."""
-    from runout.learned.training_range import measure
-    fixed = [f.numpy() for f in sampler.fixed]
-    types = [np.where(f, PARTICLE_TYPE_KINEMATIC, PARTICLE_TYPE_SOIL) for f in fixed]
-    ranges = measure([m.numpy() for m in sampler.material], types, sampler.meta, 0.0, f"{settings.data}/train.npz")
+    """What the engine is trained on (runout.learned.training_range), with the spacing of its
+    points: each dataset measured, then their union."""
+    from runout.learned.training_range import measure, union
+    parts = []
+    for k, (data, meta) in enumerate(zip(datasets(settings), sampler.metas)):
+        members = sampler.members[k].tolist()
+        fixed = [sampler.fixed[i].numpy() for i in members]
+        types = [np.where(f, PARTICLE_TYPE_KINEMATIC, PARTICLE_TYPE_SOIL) for f in fixed]
+        parts.append(measure([sampler.material[i].numpy() for i in members], types, meta, 0.0, f"{data}/train.npz"))
     velocity = sampler.velocity_statistics()
-    return {**ranges, "velocity_m_per_frame": {"mean": velocity["mean"], "std": velocity["std"]}}
+    return {**union(parts), "velocity_m_per_frame": {"mean": velocity["mean"], "std": velocity["std"]}}
 
 
 def _heldout(settings: TrainSettings) -> list:
     from runout.dataset import split_trajectories
-    return list(split_trajectories(settings.data, "valid", settings.valid_count)) if settings.valid_every else []
+    return list(split_trajectories(datasets(settings)[0], "valid", settings.valid_count)) if settings.valid_every else []
+
+
+EXTRA_VALID_COUNT = 8  # held-out scenes of each further dataset, logged beside the measure
+
+
+def _heldout_extra(settings: TrainSettings) -> dict:
+    from runout.dataset import split_trajectories
+    if not settings.valid_every:
+        return {}
+    count = min(settings.valid_count, EXTRA_VALID_COUNT)
+    return {data: list(split_trajectories(data, "valid", count)) for data in datasets(settings)[1:]}
 
 
 def _headline(result: dict) -> dict:

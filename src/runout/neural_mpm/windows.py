@@ -6,6 +6,10 @@ scene at rest) and the targets (positions of frames t0 + 1 ... t0 + span). A sha
 windows start at frame 0, where every scene starts when a user runs it; a share is mirrored
 left-right (x -> x_lo + x_hi - x), a true sample of the physics since the MPM is mirror-exact
 (tests/test_mirror.py) while the training slopes all face one way (docs/datasets.md).
+
+Several datasets may train together (the fine-tuning slopes and the `columns` stage, say):
+each batch is drawn from one of them, chosen with its share, so a batch's scenes share one
+domain and the grid stays that domain's size.
 """
 
 from __future__ import annotations
@@ -34,36 +38,76 @@ class Window:
 
 class WindowSampler:
     """Simulations with every frame in memory (float32 on the CPU): positions [T, N, 2] m,
-    fixed [N] (kinematic points), material [N, k] per simulation, bounds [2, 2] m shared."""
+    fixed [N] (kinematic points), material [N, k] per simulation; bounds [2, 2] m shared, or
+    [S, 2, 2] one per simulation; source [S] the dataset of each simulation (0, 1, ...) and
+    shares the part of the batches each dataset gives (default: one dataset)."""
 
     def __init__(self, positions: list[np.ndarray], fixed: list[np.ndarray], material: list[np.ndarray],
-                 bounds, history: int, meta: dict | None = None):
+                 bounds, history: int, meta: dict | None = None, source: list[int] | None = None,
+                 shares: list[float] | None = None, metas: list[dict] | None = None):
         self.positions = [torch.from_numpy(np.ascontiguousarray(p, dtype=np.float32)) for p in positions]
         self.fixed = [torch.from_numpy(np.asarray(f, dtype=bool)) for f in fixed]
         self.material = [torch.from_numpy(np.asarray(m, dtype=np.float32)) for m in material]
-        self.bounds = torch.tensor(np.asarray(bounds, dtype=np.float32))
+        bounds = torch.tensor(np.asarray(bounds, dtype=np.float32))
+        self.bounds = bounds.expand(len(self.positions), 2, 2) if bounds.dim() == 2 else bounds
         self.history = history
-        self.meta = meta or {"bounds": np.asarray(bounds).tolist()}  # the dataset's metadata.json
+        self.meta = meta or {"bounds": np.asarray(bounds).tolist()}  # the (first) dataset's metadata.json
+        self.metas = metas or [self.meta]  # each dataset's metadata.json
+        self.source = torch.zeros(len(self.positions), dtype=torch.long) if source is None else torch.as_tensor(source)
+        self.shares = torch.tensor(shares if shares is not None else [1.0], dtype=torch.float64)
+        self.members = [torch.nonzero(self.source == k).flatten() for k in range(len(self.shares))]
 
     @classmethod
     def from_split(cls, data: str | Path, split: str, history: int, material_width: int) -> "WindowSampler":
         """The simulations of DATA/SPLIT.npz, with DATA/metadata.json's bounds."""
-        data = Path(data)
-        meta = read_metadata(data)
-        sims = read_simulations(data / f"{split}.npz")
-        widths = {0 if m is None else m.shape[1] for _, _, m in sims}
-        if widths != {material_width}:
-            raise InputError(f"{data / f'{split}.npz'}: holds {sorted(widths)} material features per point; "
-                             f"the engine reads {material_width} ([tan phi, c / 100 kPa]).")
-        return cls([p for p, _, _ in sims], [np.asarray(t) == PARTICLE_TYPE_KINEMATIC for _, t, _ in sims],
-                   [m for _, _, m in sims], meta["bounds"], history, meta)
+        return cls.from_splits([data], split, history, material_width)
+
+    @classmethod
+    def from_splits(cls, datas: list[str | Path], split: str, history: int, material_width: int,
+                    shares: list[float] | None = None) -> "WindowSampler":
+        """The simulations of every DATA/SPLIT.npz; each batch from one dataset, chosen with
+        `shares` (default: in proportion to their simulations). The datasets must share their
+        point spacing and frame spacing: the engine has one of each."""
+        positions, fixed, material, bounds, source, metas = [], [], [], [], [], []
+        for k, data in enumerate(Path(d) for d in datas):
+            meta = read_metadata(data)
+            sims = read_simulations(data / f"{split}.npz")
+            widths = {0 if m is None else m.shape[1] for _, _, m in sims}
+            if widths != {material_width}:
+                raise InputError(f"{data / f'{split}.npz'}: holds {sorted(widths)} material features per point; "
+                                 f"the engine reads {material_width} ([tan phi, c / 100 kPa]).")
+            for key in ("cell_size", "dt"):
+                if metas and key in meta and key in metas[0] and not np.isclose(meta[key], metas[0][key]):
+                    raise InputError(f"{data / 'metadata.json'}: {key} = {meta[key]:g} differs from {datas[0]}'s "
+                                     f"{metas[0][key]:g}; datasets trained together must share it.")
+            positions += [p for p, _, _ in sims]
+            fixed += [np.asarray(t) == PARTICLE_TYPE_KINEMATIC for _, t, _ in sims]
+            material += [m for _, _, m in sims]
+            bounds += [meta["bounds"]] * len(sims)
+            source += [k] * len(sims)
+            metas.append(meta)
+        counts = [source.count(k) for k in range(len(metas))]
+        if shares is None:
+            shares = [float(c) for c in counts]
+        if len(shares) != len(metas) or min(shares) < 0 or sum(shares) <= 0:
+            raise InputError(f"the data shares {list(shares)} must be one non-negative number per dataset "
+                             f"({len(metas)}), not all zero.")
+        for data, count, share in zip(datas, counts, shares):
+            if share > 0 and count == 0:
+                raise InputError(f"{Path(data) / f'{split}.npz'}: holds no simulations but is given a share of {share:g}.")
+        return cls(positions, fixed, material, np.asarray(bounds, dtype=np.float32), history, metas[0], source,
+                   list(shares), metas)
 
     def __len__(self) -> int:
         return len(self.positions)
 
     def draw(self, batch: int, span: int, rest_share: float, mirror_share: float, generator: torch.Generator) -> Window:
-        """`batch` windows of `span` target frames, drawn with `generator`."""
-        sims = torch.randint(len(self), (batch,), generator=generator).tolist()
+        """`batch` windows of `span` target frames, drawn with `generator`, all from one dataset."""
+        if len(self.members) == 1:
+            sims = torch.randint(len(self), (batch,), generator=generator).tolist()
+        else:
+            members = self.members[int(torch.multinomial(self.shares, 1, generator=generator))]
+            sims = members[torch.randint(len(members), (batch,), generator=generator)].tolist()
         rest = (torch.rand(batch, generator=generator) < rest_share).tolist()
         mirror = (torch.rand(batch, generator=generator) < mirror_share).tolist()
         starts = torch.rand(batch, generator=generator).tolist()
@@ -77,7 +121,7 @@ class WindowSampler:
             frames = pos[max(t0 - self.history, 0):t0 + span + 1]
             if flip:
                 frames = frames.clone()
-                frames[..., 0] = self.bounds[0, 0] + self.bounds[0, 1] - frames[..., 0]
+                frames[..., 0] = self.bounds[s, 0, 0] + self.bounds[s, 0, 1] - frames[..., 0]
             lead = min(t0, self.history)  # frames before t0 in `frames`
             steps = frames[1:lead + 1] - frames[:lead]
             pad = frames.new_zeros(self.history - lead, *frames.shape[1:])
@@ -87,7 +131,7 @@ class WindowSampler:
             fixed.append(self.fixed[s])
             material.append(self.material[s])
             scene.append(torch.full((pos.shape[1],), b, dtype=torch.long))
-        points = Points(torch.cat(fixed), torch.cat(material), torch.cat(scene), self.bounds[None].expand(batch, -1, -1))
+        points = Points(torch.cat(fixed), torch.cat(material), torch.cat(scene), self.bounds[sims])
         return Window(torch.cat(xs), torch.cat(vels, 1), torch.cat(targets, 1), points)
 
     def velocity_statistics(self) -> dict:
