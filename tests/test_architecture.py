@@ -50,10 +50,11 @@ def _type_checking_only(tree: ast.Module) -> set[int]:
     return skipped
 
 
-def imported_modules(path: Path) -> set[str]:
-    """Every runout module `path` imports, at the top or inside a function."""
+def imported_modules(path: Path, type_only: bool = False) -> set[str]:
+    """Every runout module `path` imports, at the top or inside a function; with type_only,
+    also those it imports only for type names (under `if TYPE_CHECKING:`)."""
     tree = ast.parse(path.read_text())
-    skipped = _type_checking_only(tree)
+    skipped = set() if type_only else _type_checking_only(tree)
     found = set()
     for node in ast.walk(tree):
         if id(node) in skipped:
@@ -77,6 +78,31 @@ def test_no_module_imports_from_a_higher_layer():
             if layer_of(imported) > layer_of(module):
                 upward.append(f"{module} ({LAYERS[layer_of(module)][0]}) imports {imported} ({LAYERS[layer_of(imported)][0]})")
     assert not upward, "\n".join(upward)
+
+
+def test_no_modules_import_each_other():
+    """No circle of imports, not even one closed by imports for type names only: a module that
+    needs another's types sits above it (scene.model below scene.seeding, families above
+    plots.families)."""
+    graph = {module_name(path): imported_modules(path, type_only=True) for path in sorted(PACKAGE.rglob("*.py"))}
+    circles = []
+    for start in graph:
+        path, seen = _circle_from(start, graph, [start], set())
+        if path and min(path) == start:  # each circle once, from its smallest module
+            circles.append(" -> ".join(path))
+    assert not circles, "\n".join(circles)
+
+
+def _circle_from(module: str, graph: dict, path: list[str], seen: set[str]):
+    for imported in sorted(graph.get(module, ())):
+        if imported == path[0] and len(path) > 1:
+            return path + [imported], seen
+        if imported not in seen and imported != module:
+            seen.add(imported)
+            found, seen = _circle_from(imported, graph, path + [imported], seen)
+            if found:
+                return found, seen
+    return None, seen
 
 
 def test_the_layer_check_sees_imports_inside_functions(tmp_path):

@@ -17,7 +17,7 @@ import numpy as np
 from runout.contract import MAX_RADIUS, FeatureSchema, spacing_for_cells
 from runout.errors import InputError
 from runout.reading import read_json
-from runout.scene.validation import MAX_DOMAIN, MAX_FRAMES, SMALLEST_SIZE
+from runout.scene.limits import MAX_DOMAIN, MAX_FRAMES, SMALLEST_SIZE
 
 MAX_FRAME_DT = 10.0  # s between frames, as a scene's time.frame_dt allows
 MAX_RADIUS_SPACINGS = 10.0  # a connectivity radius of more point spacings gives each point > 300 neighbours

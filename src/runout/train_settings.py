@@ -11,7 +11,7 @@ from pathlib import Path
 
 from runout import checks
 from runout.contract import MAX_STEPS, NETWORK_LIMITS, SCHEMA_LIMITS, NetworkConfig
-from runout.scene.validation import MAX_FRAMES
+from runout.scene.limits import MAX_FRAMES
 
 PUSHFORWARD_LIMITS = (0, 10)  # allowed --pushforward: the most rollout steps before a training step
 

@@ -21,7 +21,7 @@ from runout.errors import InputError
 from runout.defaults import MPM_CACHE as DEFAULT_CACHE
 from runout.evaluate.cases import PAPER_CASE, ColumnGrid, SensitivityConfig
 from runout.scene import EXAMPLES
-from runout.scene.validation import MAX_FRAMES
+from runout.scene.limits import MAX_FRAMES
 
 evaluate_app = typer.Typer(
     help="Measure a learned model against the MPM: held-out scenes from rest, and the paper's column, slope, diagnostics, inverse and data-size studies.",

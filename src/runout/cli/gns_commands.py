@@ -12,7 +12,7 @@ import typer
 from runout.cli.app import app
 from runout.errors import InputError
 from runout.contract import NetworkConfig
-from runout.scene.validation import MAX_FRAMES
+from runout.scene.limits import MAX_FRAMES
 from runout.train_settings import TrainConfig, option_name
 
 MAX_STOP_SPEED = 100.0  # m/s

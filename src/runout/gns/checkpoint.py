@@ -28,7 +28,7 @@ import torch
 from runout import checks
 from runout.contract import MAX_RADIUS, MAX_STEPS, FeatureSchema  # noqa: F401  (MAX_STEPS re-exported)
 from runout.errors import InputError
-from runout.scene.validation import MAX_DOMAIN
+from runout.scene.limits import MAX_DOMAIN
 from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
 from runout.learned.files import GNS_FORMAT, read_plain
 
