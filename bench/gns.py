@@ -20,8 +20,8 @@ import torch
 
 from runout.gns.graph import radius_graph
 from runout.gns.samples import TrainingBatch
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import Normalisation, Simulator
 from runout.train import Context, TrainConfig, _train_step
 
 REFERENCE = {"rollout_s": 3.22, "train_s": 25.2, "train_peak_gib": 9.6}  # geoelements/gns, this 2-core CPU

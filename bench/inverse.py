@@ -26,8 +26,8 @@ import torch
 
 from runout.gns.checkpoint import load_simulator
 from runout.gns.engine import GnsEngine
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import Normalisation, Simulator
 from runout.inverse import load_inverse_spec
 from runout.inverse.forward import inverse_problem
 from runout.inverse.mpm_fd import MpmFiniteDifference

@@ -26,9 +26,10 @@ import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
 
-from runout.contract import RADIUS_PER_SPACING as DEFAULT_SPACINGS, FeatureSchema
+from runout.contract import RADIUS_PER_SPACING as DEFAULT_SPACINGS
+from runout.gns.schema import FeatureSchema, NetworkConfig
 from runout.gns.samples import Simulations
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.simulator import Normalisation, Simulator
 from runout.simfiles import read_metadata
 from runout.train import Context, TrainConfig, _train_step, noise_scale
 

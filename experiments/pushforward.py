@@ -22,8 +22,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # the lattice graphs of bench/gns.py
 from gns import BOUNDS, RADIUS, STATS, LatticeData, lattice_window  # noqa: E402
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import Simulator
 from runout.train import Context, TrainConfig, _train_step, unrolled_steps
 
 

@@ -193,7 +193,7 @@ def _misfit(path: Path, meta: dict) -> str | None:
 
 def train_for_budget(args: argparse.Namespace, init: Path | None, budget: Budget) -> dict:
     """Train in chunks until the budget is spent; the measured rates and step count."""
-    from runout.gns.simulator import NetworkConfig
+    from runout.gns.schema import NetworkConfig
     from runout.train import TrainConfig, continued_onset, train
     from runout.train_settings import RECIPE
 

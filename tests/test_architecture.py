@@ -131,6 +131,19 @@ def test_the_command_line_starts_without_torch_or_matplotlib():
 
 
 ENGINE_PACKAGES = ("runout.gns", "runout.neural_mpm")
+# What only the GNS reads (runout.gns.schema): the shared contract names none of it.
+GNS_ONLY = {"NetworkConfig", "NETWORK_LIMITS", "MAX_STEPS", "FeatureSchema", "wall_clip", "type_embedding", "overburden",
+            "node_width", "edge_width", "latent", "hidden", "message_passing_steps"}
+
+
+def test_the_contract_holds_only_what_every_learned_engine_shares():
+    """runout.contract: history, stride, particle types, material features, the codec and the
+    radius per spacing; the GNS's node inputs and layer sizes are runout.gns.schema's."""
+    tree = ast.parse((PACKAGE / "contract.py").read_text())
+    names = {getattr(node, attr) for node in ast.walk(tree) for attr in ("id", "attr", "name", "arg")
+             if isinstance(getattr(node, attr, None), str)}
+    names |= {node.value for node in ast.walk(tree) if isinstance(node, ast.Constant) and isinstance(node.value, str)}
+    assert not names & GNS_ONLY, sorted(names & GNS_ONLY)
 
 
 def test_commands_reach_the_learned_engines_only_through_the_contract():

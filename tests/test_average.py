@@ -4,9 +4,10 @@ from pathlib import Path
 
 import torch
 
-from runout.contract import FeatureSchema
+from runout.gns.schema import FeatureSchema
 from runout.gns.checkpoint import load_simulator, save_checkpoint
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.simulator import Normalisation, Simulator
+from runout.gns.schema import NetworkConfig
 from test_cli_exits import one_sentence, run
 
 TINY = NetworkConfig(latent=8, hidden=8, hidden_layers=1, message_passing_steps=1)

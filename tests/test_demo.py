@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 from runout.cli import app
 from runout.errors import InputError
 from runout.gns.checkpoint import read_checkpoint
-from runout.gns.simulator import NetworkConfig
+from runout.gns.schema import NetworkConfig
 from runout.train import TrainConfig, continued_onset, train
 from runout.train_settings import RECIPE
 from test_gns_synthetic import write_dataset

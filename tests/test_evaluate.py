@@ -16,8 +16,8 @@ from runout.evaluate.diagnostics import sigma_distance
 from runout.evaluate.inverse_study import spec_text
 from runout.evaluate.scenes import EXAMPLES, example_scene
 from runout.gns.checkpoint import read_checkpoint, save_checkpoint
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import Normalisation, Simulator
 from runout.inverse import load_inverse_spec
 from runout.metrics import (
     absolute_percentage_error, coefficient_of_variation, displacement_error, normalised_runout, r_squared,

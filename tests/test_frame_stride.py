@@ -15,8 +15,8 @@ from runout.gns.engine import GnsEngine
 from runout.gns.rollout import rollout_trajectory, start_window
 from runout.learned.scenes import scene_at_rest
 from runout.gns.samples import Simulations
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import Normalisation, Simulator
 from runout.inverse import load_inverse_spec, load_observation
 from runout.inverse.forward import inverse_problem
 from runout.metrics import at_common_times, compare, position_mse

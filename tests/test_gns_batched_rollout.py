@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from runout.contract import FeatureSchema
+from runout.gns.schema import FeatureSchema
 from runout.errors import InputError
 from runout.gns.rollout import rollout_trajectories, rollout_trajectory
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.simulator import Normalisation, Simulator
+from runout.gns.schema import NetworkConfig
 from runout.trajectory import trajectory_from_features
 from test_gns_synthetic import FRAME_DT, falling_block
 

@@ -66,8 +66,8 @@ def test_a_missing_model_is_an_input_error(tmp_path):
 def spaced_model(path, radius=12.0, spacing=4.0):
     """An untrained checkpoint whose data_ranges record `spacing` (m) and whose radius is another (m)."""
     from runout.gns.checkpoint import save_checkpoint
-    from runout.contract import FeatureSchema
-    from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+    from runout.gns.schema import FeatureSchema, NetworkConfig
+    from runout.gns.simulator import Normalisation, Simulator
 
     torch.manual_seed(0)
     stats = Normalisation((0.0, 0.0), (0.02, 0.02), (0.0, 0.0), (2e-3, 2e-3), 2.5e-3)

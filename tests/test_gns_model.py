@@ -6,8 +6,8 @@ from runout.errors import InputError
 from runout.gns.checkpoint import check_schema, load_simulator, save_checkpoint, widen_material_features
 from runout.gns.network import EdgeUpdate
 from runout.gns.rollout import CHECK_EVERY, MIN_FRAMES_BEFORE_STOP, RolloutDiverged, rollout
-from runout.contract import FeatureSchema
-from runout.gns.simulator import Case, NetworkConfig, Normalisation, Simulator, corrected_target, random_walk_noise
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import Case, Normalisation, Simulator, corrected_target, random_walk_noise
 
 torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
 

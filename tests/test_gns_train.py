@@ -11,7 +11,7 @@ import torch.multiprocessing as mp
 from runout.errors import InputError
 from runout.gns.checkpoint import load_last_step, load_simulator, read_checkpoint
 from runout.gns.rollout import rollout_trajectory
-from runout.gns.simulator import NetworkConfig
+from runout.gns.schema import NetworkConfig
 from runout.metrics import compare, final_displacement
 from runout.train import TrainConfig, learning_rate, train
 from runout.trajectory import trajectory_from_features

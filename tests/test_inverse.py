@@ -20,8 +20,8 @@ from runout.errors import InputError
 from runout.gns.checkpoint import save_checkpoint
 from runout.gns.engine import GnsEngine
 from runout.gns.rollout import rollout
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import Normalisation, Simulator
 from runout.inverse import Evaluation, invert, load_inverse_spec, load_observation, minimise, starting_points
 from runout.inverse.forward import inverse_problem
 from runout.inverse.history import HISTORY_JSON, RunInfo

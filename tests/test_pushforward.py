@@ -11,7 +11,7 @@ import torch.multiprocessing as mp
 from runout.errors import InputError
 from runout.gns.checkpoint import read_checkpoint
 from runout.gns.samples import Simulations
-from runout.contract import FeatureSchema
+from runout.gns.schema import FeatureSchema
 from runout.gns.simulator import Case, Normalisation, Simulator
 from runout.simfiles import read_metadata, read_simulations
 from runout.train import Context, _generators, _train_step, train, unrolled_steps

@@ -10,7 +10,8 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from runout import checks
-from runout.contract import MAX_STEPS, NETWORK_LIMITS, SCHEMA_LIMITS, NetworkConfig
+from runout.contract import SCHEMA_LIMITS
+from runout.gns.schema import MAX_STEPS, NETWORK_LIMITS, NetworkConfig  # noqa: F401  (NetworkConfig re-exported for the command line)
 from runout.scene.limits import MAX_FRAMES
 
 PUSHFORWARD_LIMITS = (0, 10)  # allowed --pushforward: the most rollout steps before a training step

@@ -11,9 +11,8 @@ import typer
 
 from runout.cli.app import app
 from runout.errors import InputError
-from runout.contract import NetworkConfig
 from runout.scene.limits import MAX_FRAMES
-from runout.train_settings import TrainConfig, option_name
+from runout.train_settings import NetworkConfig, TrainConfig, option_name
 
 MAX_STOP_SPEED = 100.0  # m/s
 SETTING_OF_PARAMETER = {"lr": "lr_init", "message_passing": "message_passing_steps"}  # `train` parameters named apart from their setting

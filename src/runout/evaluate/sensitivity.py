@@ -26,7 +26,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from runout.contract import FeatureSchema
+from runout.contract import WindowSchema
 from runout.dataset import split_trajectories
 from runout.defaults import FRAME_DT
 from runout.errors import InputError
@@ -78,7 +78,7 @@ def write_subset(data: Path, folder: Path, size: int) -> Path:
     return folder
 
 
-def steps_per_epoch(subset: Path, batch_size: int, schema: FeatureSchema) -> int:
+def steps_per_epoch(subset: Path, batch_size: int, schema: WindowSchema) -> int:
     """Steps of one pass over the windows training samples from SUBSET/train.npz at the
     schema's history and frame stride (with TrainConfig's rest windows and static tail)."""
     data = Simulations(subset / "train.npz", torch.device("cpu"), schema.history, rest_windows=TrainConfig.rest_windows,

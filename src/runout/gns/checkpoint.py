@@ -26,10 +26,11 @@ from pathlib import Path
 import torch
 
 from runout import checks
-from runout.contract import MAX_RADIUS, MAX_STEPS, FeatureSchema  # noqa: F401  (MAX_STEPS re-exported)
+from runout.contract import MAX_RADIUS
+from runout.gns.schema import MAX_STEPS, FeatureSchema, NetworkConfig
 from runout.errors import InputError
 from runout.scene.limits import MAX_DOMAIN
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.simulator import Normalisation, Simulator
 from runout.learned.files import GNS_FORMAT, read_plain
 
 FORMAT = GNS_FORMAT

@@ -33,7 +33,8 @@ import torch
 
 from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
-from runout.gns.schema import HISTORY, FeatureSchema, material_names_for_width
+from runout.contract import HISTORY, material_names_for_width
+from runout.gns.schema import FeatureSchema
 from runout.simfiles import read_simulations
 from runout.trajectory import first_frame_velocity
 

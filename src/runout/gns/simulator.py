@@ -24,10 +24,11 @@ from dataclasses import asdict, dataclass
 import torch
 from torch import nn
 
-from runout.contract import NETWORK_LIMITS, FeatureSchema, NetworkConfig, spacing_for_radius  # noqa: F401  (NetworkConfig, NETWORK_LIMITS re-exported)
+from runout.contract import spacing_for_radius
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.gns.graph import radius_graph
 from runout.gns.network import EncodeProcessDecode
+from runout.gns.schema import FeatureSchema, NetworkConfig
 
 
 @dataclass(frozen=True)
