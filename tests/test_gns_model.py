@@ -7,7 +7,9 @@ from runout.gns.checkpoint import check_schema, load_simulator, save_checkpoint,
 from runout.gns.network import EdgeUpdate
 from runout.gns.rollout import CHECK_EVERY, MIN_FRAMES_BEFORE_STOP, RolloutDiverged, rollout
 from runout.gns.schema import FeatureSchema, NetworkConfig
-from runout.gns.simulator import Case, Normalisation, Simulator, corrected_target, random_walk_noise
+from runout.gns.features import Constraints
+from runout.gns.simulator import Normalisation, Simulator
+from runout.gns.training import corrected_target, masked_loss, random_walk_noise
 
 torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
 
@@ -180,18 +182,16 @@ def test_blocked_inference_equals_the_differentiable_forward(monkeypatch):
 
 
 def test_the_case_holds_kinematic_points_and_keeps_the_rest_inside_the_walls():
-    from runout.gns.simulator import Case
 
-    case = Case.of(torch.tensor([6, 3, 6]), [[0.0, 10.0], [0.0, 5.0]])
+    constraints = Constraints.of(torch.tensor([6, 3, 6]), [[0.0, 10.0], [0.0, 5.0]])
     current = torch.tensor([[1.0, 1.0], [2.0, 0.5], [9.0, 4.0]])
     predicted = torch.tensor([[-1.0, 2.0], [3.0, 3.0], [12.0, 6.0]])
-    out = case.constrain(predicted, current)
+    out = constraints.constrain(predicted, current)
     assert torch.equal(out, torch.tensor([[0.0, 2.0], [2.0, 0.5], [10.0, 5.0]]))
 
 
 def test_the_moving_weight_counts_moving_points_that_many_times():
     from runout.gns.samples import TrainingBatch
-    from runout.gns.simulator import Case
     from runout.train import MOVING_SPEED, _moving_weights
 
     dt = 0.0375  # s per step
@@ -200,10 +200,10 @@ def test_the_moving_weight_counts_moving_points_that_many_times():
     batch = TrainingBatch(window, step[:, None], torch.tensor([6, 6, 3]), torch.zeros((3, 0)), torch.zeros(3, dtype=torch.long))
     weights = _moving_weights(batch, 4.0, dt)
     assert weights.tolist() == [1.0, 4.0, 1.0] and _moving_weights(batch, 1.0, dt) is None
-    case = Case.of(batch.particle_type, [[0.0, 10.0], [0.0, 10.0]])  # the third point is kinematic: no loss
+    constraints = Constraints.of(batch.particle_type, [[0.0, 10.0], [0.0, 10.0]])  # the third point is kinematic: no loss
     predicted, target = torch.zeros((3, 2)), torch.tensor([[1.0, 0.0], [2.0, 0.0], [5.0, 0.0]])
-    assert Simulator.loss(predicted, target, case, weights).item() == pytest.approx((1.0 + 4.0 * 4.0) / 5.0)
-    assert Simulator.loss(predicted, target, case).item() == pytest.approx((1.0 + 4.0) / 2.0)
+    assert masked_loss(predicted, target, constraints, weights).item() == pytest.approx((1.0 + 4.0 * 4.0) / 5.0)
+    assert masked_loss(predicted, target, constraints).item() == pytest.approx((1.0 + 4.0) / 2.0)
 
 
 def test_held_positions_of_the_scene_at_rest_get_no_noise():
@@ -264,7 +264,7 @@ def test_overburden_is_the_depth_below_the_surface_at_rest():
     """A 2:1 slope at rest (lattice of 4 m, the model's columns of 8 m): each soil point's
     overburden equals the depth from the ground surface above it to the point, and kinematic
     points (ground) above do not count; two graphs are kept apart."""
-    from runout.gns.simulator import overburden_depth
+    from runout.gns.features import overburden_depth
 
     block = lattice(80.0, 64.0)
     surface = 64.0 - 0.5 * torch.clamp(block[:, 0] - 16.0, min=0.0)  # flat crest, then a 1:2 face (m)
@@ -331,19 +331,19 @@ def test_soil_does_not_pass_through_the_fixed_ground():
     soil = [(2.0, 6.0), (14.0, 6.0), (18.0, 3.5), (30.0, 10.0), (34.0, 20.0)]
     points = torch.tensor(ground + overhang + soil)
     ptype = torch.tensor([3] * (len(ground) + 1) + [6] * len(soil))
-    case = Case.of(ptype, BOUNDS.new_tensor([[0.0, 40.0], [0.0, 40.0]]), points, None, 4.0)
+    constraints = Constraints.of(ptype, BOUNDS.new_tensor([[0.0, 40.0], [0.0, 40.0]]), points, None, 4.0)
     predicted = points.clone()
     predicted[-5:] = torch.tensor([[2.5, -5.0], [15.0, 0.5], [21.0, 3.0], [31.0, 8.0], [34.0, 19.0]])
-    moved = case.constrain(predicted, points)
+    moved = constraints.constrain(predicted, points)
     assert torch.equal(moved[: len(ground) + 1], points[: len(ground) + 1])  # the fixed points stay
     assert moved[-5].tolist() == [2.5, 1.0]  # sank: raised to the floor, 2 - 1 m
     assert moved[-4].tolist() == [15.0, 1.0]
     assert moved[-3].tolist() == [18.0, 3.0]  # into the step's side: x kept, y as predicted (above its own floor)
     assert moved[-2].tolist() == [31.0, 8.0]  # above the step's floor (29 m): free
     assert moved[-1].tolist() == [34.0, 19.0]  # under the overhang (floor 29 m there): left alone
-    walls_only = Case.of(ptype, case.bounds).constrain(predicted, points)[-5:]  # no ground given: the domain's bounds only
+    walls_only = Constraints.of(ptype, constraints.bounds).constrain(predicted, points)[-5:]  # no ground given: the domain's bounds only
     assert torch.equal(walls_only, predicted[-5:].clamp(min=0.0))
-    two = Case.of(torch.cat([ptype, ptype]), case.bounds, torch.cat([points, points + torch.tensor([0.0, 10.0])]),
+    two = Constraints.of(torch.cat([ptype, ptype]), constraints.bounds, torch.cat([points, points + torch.tensor([0.0, 10.0])]),
                   torch.cat([torch.zeros(len(points)), torch.ones(len(points))]).long(), 4.0)
     lifted = two.constrain(torch.cat([predicted, predicted]), torch.cat([points, points + torch.tensor([0.0, 10.0])]))
     assert lifted[len(points) + len(ground) + 1].tolist() == [2.5, 11.0]  # each scene its own ground
@@ -353,7 +353,7 @@ def test_the_mpm_soil_stays_above_the_gns_floor():
     """The floor is the MPM's own behaviour: a column collapsing onto stepped fixed ground
     (8 m cells, 4 m points, 4.5 s) never puts a soil point below its column's floor, so the
     constraint takes away nothing the MPM would do."""
-    from runout.gns.simulator import Ground
+    from runout.gns.features import Ground
     from runout.mpm import simulate
     from runout.scene import scene_from_dict
 

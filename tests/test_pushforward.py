@@ -12,7 +12,9 @@ from runout.errors import InputError
 from runout.gns.checkpoint import read_checkpoint
 from runout.gns.samples import Simulations
 from runout.gns.schema import FeatureSchema
-from runout.gns.simulator import Case, Normalisation, Simulator
+from runout.gns.features import Constraints
+from runout.gns.simulator import Normalisation, Simulator
+from runout.gns.training import masked_loss, pushforward, training_inputs
 from runout.simfiles import read_metadata, read_simulations
 from runout.train import Context, _generators, _train_step, train, unrolled_steps
 from runout.train_settings import onset_at, parse_onset_schedule
@@ -89,17 +91,17 @@ def test_an_unrolled_window_is_the_models_rollout_and_its_target_the_acceleratio
     data = write_dataset(tmp_path / "data")
     sims = Simulations(data / "train.npz", torch.device("cpu"))
     window, future, ptype, material, _ = sims._window(5, 2)
-    case = Case.of(ptype, torch.tensor(read_metadata(data)["bounds"]))
+    constraints = Constraints.of(ptype, torch.tensor(read_metadata(data)["bounds"]))
     simulator = tiny_simulator()
-    produced = simulator.pushforward(window, 2, ptype, material, case)
+    produced = pushforward(simulator, window, 2, ptype, material, constraints)
     assert not produced.requires_grad
     with torch.no_grad():  # by hand: two rollout steps, each appended and the oldest dropped
-        first = simulator.step(window, ptype, material, case)
-        second = simulator.step(torch.cat([window[:, 1:], first[:, None]], 1), ptype, material, case)
+        first = simulator.step(window, ptype, material, constraints)
+        second = simulator.step(torch.cat([window[:, 1:], first[:, None]], 1), ptype, material, constraints)
     torch.testing.assert_close(produced, torch.cat([window[:, 2:], first[:, None], second[:, None]], 1), rtol=0, atol=0)
-    kinematic = ~case.movable
+    kinematic = ~constraints.movable
     assert torch.equal(produced[kinematic, -1], window[kinematic, -1])  # held, as in a rollout
-    noisy, target = simulator.training_inputs(produced, future[:, -1], case, torch.Generator().manual_seed(0))
+    noisy, target = training_inputs(simulator, produced, future[:, -1], constraints, torch.Generator().manual_seed(0))
     x, v = produced[:, -1], produced[:, -1] - produced[:, -2]
     expected = (future[:, -1] - x) - v  # the acceleration from the produced window to the true frame
     assert torch.equal(noisy, produced)  # no noise in this simulator
@@ -117,14 +119,14 @@ def test_a_training_step_with_two_unrolled_steps_takes_its_loss_on_the_produced_
     simulator = tiny_simulator(noise=2.5e-3)
     sampler, noise_gen = _generators(cfg.seed, step, ctx)
     batch = sims.sample(cfg.batch_size, sampler, 2)
-    case = Case.of(batch.particle_type, bounds)
+    constraints = Constraints.of(batch.particle_type, bounds)
     with torch.no_grad():
         window = batch.window
         for _ in range(2):
-            window = torch.cat([window[:, 1:], simulator.step(window, batch.particle_type, batch.material, case, batch.graph)[:, None]], 1)
-        noisy, target = simulator.training_inputs(window, batch.future[:, -1], case, noise_gen)
+            window = torch.cat([window[:, 1:], simulator.step(window, batch.particle_type, batch.material, constraints, batch.graph)[:, None]], 1)
+        noisy, target = training_inputs(simulator, window, batch.future[:, -1], constraints, noise_gen)
     predicted = simulator(noisy, batch.particle_type, batch.material, bounds, batch.graph)
-    expected = simulator.loss(predicted, target, case).detach()
+    expected = masked_loss(predicted, target, constraints).detach()
     optimizer = torch.optim.Adam(simulator.parameters(), lr=0.0)
     loss = _train_step(simulator, simulator, optimizer, sims, bounds, cfg, step, ctx)
     torch.testing.assert_close(loss.detach(), expected, rtol=0, atol=0)

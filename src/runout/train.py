@@ -46,7 +46,9 @@ from runout.gns.checkpoint import (
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations, mirrored
 from runout.gns.schema import FeatureSchema
-from runout.gns.simulator import Case, Normalisation, Simulator
+from runout.gns.features import Constraints
+from runout.gns.simulator import Normalisation, Simulator
+from runout.gns.training import masked_loss, pushforward, training_inputs
 from runout.learned.training_range import measure as measure_ranges
 from runout.metrics import compare
 from runout.outputs import write_atomic
@@ -372,17 +374,16 @@ def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> to
     sampler, noise_gen = _generators(cfg.seed, step, ctx)
     batch = data.sample(cfg.batch_size, sampler, unrolled_steps(cfg.seed, step, cfg.pushforward), *onset_at(cfg, step))
     batch = mirrored(batch, bounds[0], cfg.mirror, sampler, graphs=cfg.batch_size)
-    case = Case.of(batch.particle_type, bounds, batch.window[:, 0], batch.graph, simulator.point_spacing)
+    constraints = Constraints.of(batch.particle_type, bounds, batch.window[:, 0], batch.graph, simulator.point_spacing)
     autocast = torch.autocast(ctx.device.type, dtype=torch.bfloat16) if cfg.bf16 else nullcontext()
     with autocast:  # the model's own rollout from the true window, without gradient (none when batch.unroll is 0)
-        window = simulator.pushforward(
-            batch.window, batch.unroll, batch.particle_type, batch.material, case, batch.graph
-        )
+        window = pushforward(simulator, batch.window, batch.unroll, batch.particle_type, batch.material, constraints,
+                             batch.graph)
     held = (batch.held - batch.unroll).clamp(min=0) if cfg.exact_rest and batch.held is not None else None
-    noisy, target = simulator.training_inputs(window, batch.future[:, -1], case, noise_gen, held)
+    noisy, target = training_inputs(simulator, window, batch.future[:, -1], constraints, noise_gen, held)
     with autocast:  # through `model`, the DDP wrapper under torchrun, so gradients synchronise
-        predicted = model(noisy, batch.particle_type, batch.material, case.bounds, batch.graph, cfg.checkpoint_layers)
-    loss = simulator.loss(predicted, target, case, _moving_weights(batch, cfg.moving_weight, data.frame_dt * data.stride))
+        predicted = model(noisy, batch.particle_type, batch.material, constraints.bounds, batch.graph, cfg.checkpoint_layers)
+    loss = masked_loss(predicted, target, constraints, _moving_weights(batch, cfg.moving_weight, data.frame_dt * data.stride))
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     optimizer.step()
