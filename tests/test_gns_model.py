@@ -3,7 +3,9 @@ import torch
 from torch import nn
 
 from runout.errors import InputError
-from runout.gns.checkpoint import check_schema, load_simulator, save_checkpoint, widen_material_features
+from runout.gns.checkpoint import load_simulator, save_checkpoint
+from runout.gns.checkpoint_checks import check_schema
+from runout.gns.fine_tuning import renormalise, widen_material_features
 from runout.gns.network import EdgeUpdate
 from runout.gns.rollout import CHECK_EVERY, MIN_FRAMES_BEFORE_STOP, RolloutDiverged, rollout
 from runout.gns.schema import FeatureSchema, NetworkConfig
@@ -239,7 +241,7 @@ def test_renormalising_keeps_the_predictions_and_takes_the_new_scales():
     with torch.no_grad():
         before = sim.next_positions(window, ptype, material, BOUNDS)
     narrow = Normalisation((0.004, -0.02), (0.05, 0.01), (1e-4, -2e-3), (1e-3, 5e-4), 1e-4)
-    sim.renormalise(narrow)
+    renormalise(sim, narrow)
     assert sim.stats == narrow
     torch.testing.assert_close(sim.acc_scale, torch.tensor([1e-3, 5e-4]).square().add(1e-8).sqrt())
     with torch.no_grad():

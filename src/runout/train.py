@@ -39,10 +39,9 @@ from runout import checks
 from runout.dataset import split_trajectories
 from runout.defaults import FRAME_DT
 from runout.errors import InputError, Interrupted
-from runout.gns.checkpoint import (
-    check_resumable, check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint,
-    widen_material_features,
-)
+from runout.gns.checkpoint import read_checkpoint, save_checkpoint, simulator_from_checkpoint
+from runout.gns.checkpoint_checks import check_resumable, check_schema
+from runout.gns.fine_tuning import renormalise, restride, widen_material_features
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.samples import Simulations, mirrored
 from runout.gns.schema import FeatureSchema
@@ -490,11 +489,11 @@ def _start(cfg: TrainConfig, meta: dict, data: Simulations):
         base = read_checkpoint(cfg.init)
         simulator = simulator_from_checkpoint(base, cfg.init)
         if cfg.frame_stride not in (None, simulator.frame_stride):
-            _restride(simulator, cfg.frame_stride, meta, data, cfg.noise)
+            restride(simulator, cfg.frame_stride, _stride_statistics(meta, data, cfg.frame_stride, cfg.noise))
         else:  # --noise is a fraction of this data's velocity std, whatever the base model trained with; the
             # normalisation becomes this data's widened by this noise, the weights adjusted so that training
             # starts from the base's predictions (a noisier base's scales would shrink the targets)
-            simulator.renormalise(_stride_statistics(meta, data, simulator.frame_stride, cfg.noise))
+            renormalise(simulator, _stride_statistics(meta, data, simulator.frame_stride, cfg.noise))
         wanted = data.schema(simulator.schema)
         if wanted.material_features != simulator.schema.material_features:
             widen_material_features(simulator, wanted.material_features, cfg.init)
@@ -518,16 +517,6 @@ def _check_overburden(cfg: TrainConfig, simulator: Simulator, source) -> None:
         raise InputError(f"{source} {has} overburden input, so it trains only "
                          f"{'with' if simulator.schema.overburden else 'without'} it; leave --overburden out "
                          "or start a new run in another --out.")
-
-
-def _restride(simulator: Simulator, stride: int, meta: dict, data: Simulations, noise: float) -> None:
-    """Start a model of another frame stride from `simulator`'s weights (--init with
-    --frame-stride K): the schema records K and the normalisation becomes that of the data's
-    K-frame differences, with the noise scaled to a K-frame step. The network sees inputs and
-    targets normalised as before (velocities and accelerations in units of their own spread),
-    so its weights are a warm start for the longer step, not a model of it."""
-    simulator.schema = replace(simulator.schema, frame_stride=stride)
-    simulator.use_statistics(_stride_statistics(meta, data, stride, noise))
 
 
 def _stride_statistics(meta: dict, data: Simulations, stride: int, noise: float) -> Normalisation:

@@ -71,7 +71,7 @@ def _finite(x) -> bool:
 
 
 
-def _normalisation_buffers(stats: Normalisation) -> dict[str, torch.Tensor]:
+def normalisation_buffers(stats: Normalisation) -> dict[str, torch.Tensor]:
     """Means and scales of velocities and accelerations; the scales are the statistics widened
     by the training noise, as in the public GNS."""
     noise2 = stats.noise_std**2
@@ -98,40 +98,14 @@ class Simulator(nn.Module):
             schema.node_width, schema.edge_width, schema.dim,
             config.latent, config.hidden, config.hidden_layers, config.message_passing_steps,
         )
-        for name, value in _normalisation_buffers(stats).items():
+        for name, value in normalisation_buffers(stats).items():
             self.register_buffer(name, value)
 
     def use_statistics(self, stats: Normalisation) -> None:
         """Normalise with other dataset statistics from now on (same weights)."""
         self.stats = stats
-        for name, value in _normalisation_buffers(stats).items():
+        for name, value in normalisation_buffers(stats).items():
             getattr(self, name).copy_(value)
-
-    def renormalise(self, stats: Normalisation) -> None:
-        """Normalise with `stats` from now on, the weights changed so that the model predicts
-        the same next positions (up to rounding): the node encoder's velocity columns and the
-        decoder's last layer absorb the change of the velocity and acceleration scales and means.
-
-        Fine-tuning at another noise needs this: the scales are widened by the training noise,
-        and a model that keeps a noisier base's scales learns its targets as a small fraction of
-        its output range (noise 0.3 widens the acceleration scale about 20x past the data's)."""
-        old = {name: getattr(self, name).detach().clone().double() for name in ("vel_mean", "vel_scale", "acc_mean", "acc_scale")}
-        new = {name: value.double() for name, value in _normalisation_buffers(stats).items()}
-        with torch.no_grad():
-            # velocity inputs: (v - m) / s = ((v - m') / s') * (s' / s) + (m' - m) / s, per column (history - 1 steps x dim)
-            first = self.network.node_encoder[0]
-            n_vel = (self.schema.history - 1) * self.schema.dim
-            ratio = (new["vel_scale"] / old["vel_scale"]).repeat(self.schema.history - 1)
-            shift = ((new["vel_mean"] - old["vel_mean"]) / old["vel_scale"]).repeat(self.schema.history - 1)
-            w = first.weight[:, :n_vel].double()
-            first.bias.add_((w @ shift).to(first.bias.dtype))
-            first.weight[:, :n_vel] = (w * ratio).to(first.weight.dtype)
-            # accelerations: y' a' + m' = y a + m, so y' = y (a / a') + (m - m') / a'
-            last = self.network.decoder[-1]
-            scale = old["acc_scale"] / new["acc_scale"]
-            last.weight.copy_((last.weight.double() * scale[:, None]).to(last.weight.dtype))
-            last.bias.copy_(((last.bias.double() * old["acc_scale"] + old["acc_mean"] - new["acc_mean"]) / new["acc_scale"]).to(last.bias.dtype))
-        self.use_statistics(stats)
 
     @property
     def frame_stride(self) -> int:
