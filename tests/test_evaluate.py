@@ -17,7 +17,7 @@ from runout.evaluate.inverse_study import spec_text
 from runout.evaluate.scenes import EXAMPLES, example_scene
 from runout.gns.checkpoint import read_checkpoint, save_checkpoint
 from runout.gns.schema import FeatureSchema, NetworkConfig
-from runout.gns.simulator import Normalisation, Simulator
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 from runout.inverse import load_inverse_spec
 from runout.metrics import (
     absolute_percentage_error, coefficient_of_variation, displacement_error, normalised_runout, r_squared,
@@ -36,7 +36,8 @@ COLUMN_GRID = ["--aspects", "1,2", "--phis", "22.5", "--cohesions", "25", "--sca
 
 def tiny_model(path, materials=("tan_phi", "c_over_100kPa")):
     torch.manual_seed(0)
-    return save_checkpoint(path, Simulator(FeatureSchema(material_features=materials), STATS, 4.6, NetworkConfig(16, 16, 2, 2)))
+    simulator = GraphNetworkSimulator(FeatureSchema(material_features=materials), STATS, 4.6, NetworkConfig(16, 16, 2, 2))
+    return save_checkpoint(path, simulator)
 
 
 def invoke(args):

@@ -5,12 +5,12 @@ from torch import nn
 from runout.errors import InputError
 from runout.gns.checkpoint import load_simulator, save_checkpoint
 from runout.gns.checkpoint_checks import check_schema
+from runout.gns.features import Constraints
 from runout.gns.fine_tuning import renormalise, widen_material_features
 from runout.gns.network import EdgeUpdate
 from runout.gns.rollout import CHECK_EVERY, MIN_FRAMES_BEFORE_STOP, RolloutDiverged, rollout
 from runout.gns.schema import FeatureSchema, NetworkConfig
-from runout.gns.features import Constraints
-from runout.gns.simulator import Normalisation, Simulator
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 from runout.gns.training import corrected_target, masked_loss, random_walk_noise
 
 torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
@@ -20,9 +20,9 @@ STATS = Normalisation((0.0, -0.01), (0.02, 0.03), (0.0, -1e-3), (2e-3, 3e-3), 2.
 BOUNDS = torch.tensor([[0.0, 40.0], [0.0, 20.0]])
 
 
-def tiny_simulator(materials=("tan_phi",), seed=0) -> Simulator:
+def tiny_simulator(materials=("tan_phi",), seed=0) -> GraphNetworkSimulator:
     torch.manual_seed(seed)
-    return Simulator(FeatureSchema(material_features=materials), STATS, 4.6, TINY).eval()
+    return GraphNetworkSimulator(FeatureSchema(material_features=materials), STATS, 4.6, TINY).eval()
 
 
 def heap(n_steps_history=6):
@@ -193,7 +193,7 @@ def test_the_case_holds_kinematic_points_and_keeps_the_rest_inside_the_walls():
 
 
 def test_the_moving_weight_counts_moving_points_that_many_times():
-    from runout.gns.samples import TrainingBatch
+    from runout.gns.windows import TrainingBatch
     from runout.train import MOVING_SPEED, _moving_weights
 
     dt = 0.0375  # s per step
@@ -222,10 +222,10 @@ def test_held_positions_of_the_scene_at_rest_get_no_noise():
 
 
 def test_a_window_knows_how_many_of_its_positions_are_the_scene_at_rest(tmp_path):
-    from runout.gns.samples import Simulations
+    from runout.gns.windows import TrainingWindows
     from test_gns_synthetic import write_dataset
 
-    sims = Simulations(write_dataset(tmp_path / "data", frames=20, n_train=1) / "train.npz", torch.device("cpu"))
+    sims = TrainingWindows(write_dataset(tmp_path / "data", frames=20, n_train=1) / "train.npz", torch.device("cpu"))
     assert [sims._window(k)[4] for k in range(8)] == [6, 5, 4, 3, 2, 1, 0, 0]
 
 
@@ -298,7 +298,8 @@ def test_a_model_with_the_overburden_input_sees_depth_and_round_trips(tmp_path):
     (older checkpoints) have none."""
     frames, ptype = heap()
     torch.manual_seed(0)
-    sim = Simulator(FeatureSchema(material_features=("tan_phi", "c_over_100kPa"), overburden=True), STATS, 4.6, TINY).eval()
+    schema = FeatureSchema(material_features=("tan_phi", "c_over_100kPa"), overburden=True)
+    sim = GraphNetworkSimulator(schema, STATS, 4.6, TINY).eval()
     assert sim.schema.node_width == tiny_simulator(("tan_phi", "c_over_100kPa")).schema.node_width + 1
     material = torch.rand((40, 2))
     window = frames.transpose(0, 1)

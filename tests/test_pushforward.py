@@ -10,11 +10,11 @@ import torch.multiprocessing as mp
 
 from runout.errors import InputError
 from runout.gns.checkpoint import read_checkpoint
-from runout.gns.samples import Simulations
-from runout.gns.schema import FeatureSchema
 from runout.gns.features import Constraints
-from runout.gns.simulator import Normalisation, Simulator
+from runout.gns.schema import FeatureSchema
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 from runout.gns.training import masked_loss, pushforward, training_inputs
+from runout.gns.windows import TrainingWindows
 from runout.simfiles import read_metadata, read_simulations
 from runout.train import Context, _generators, _train_step, train, unrolled_steps
 from runout.train_settings import onset_at, parse_onset_schedule
@@ -63,7 +63,7 @@ def test_the_unrolled_steps_are_uniform_and_depend_on_seed_and_step_only():
 @pytest.mark.parametrize("stride", [1, 2])
 def test_windows_for_two_pushforward_steps_leave_room_for_the_true_frames(tmp_path, stride):
     data = write_dataset(tmp_path / "data", frames=20, n_train=2)
-    sims = Simulations(data / "train.npz", torch.device("cpu"), rest_windows=False).with_stride(stride)
+    sims = TrainingWindows(data / "train.npz", torch.device("cpu"), rest_windows=False).with_stride(stride)
     starts = 20 - 8 * stride  # a window and its target 2 steps on span (6 + 2) x stride + 1 frames
     assert sims.n_windows_for(2) == 2 * starts and sims.n_windows == 2 * (20 - 6 * stride)
     positions = torch.from_numpy(read_simulations(data / "train.npz")[1][0])
@@ -81,15 +81,15 @@ def test_windows_for_two_pushforward_steps_leave_room_for_the_true_frames(tmp_pa
         assert any(np.array_equal(frames, p[s : s + 8 * stride + 1 : stride]) for p in every for s in range(starts))
 
 
-def tiny_simulator(noise: float = 0.0) -> Simulator:
+def tiny_simulator(noise: float = 0.0) -> GraphNetworkSimulator:
     torch.manual_seed(0)
     stats = Normalisation((0.0, -0.05), (0.1, 0.1), (0.0, 0.0), (0.02, 0.02), noise)
-    return Simulator(FeatureSchema(material_features=("tan_phi",)), stats, 4.6, TINY)
+    return GraphNetworkSimulator(FeatureSchema(material_features=("tan_phi",)), stats, 4.6, TINY)
 
 
 def test_an_unrolled_window_is_the_models_rollout_and_its_target_the_acceleration_to_the_true_frame(tmp_path):
     data = write_dataset(tmp_path / "data")
-    sims = Simulations(data / "train.npz", torch.device("cpu"))
+    sims = TrainingWindows(data / "train.npz", torch.device("cpu"))
     window, future, ptype, material, _ = sims._window(5, 2)
     constraints = Constraints.of(ptype, torch.tensor(read_metadata(data)["bounds"]))
     simulator = tiny_simulator()
@@ -110,7 +110,7 @@ def test_an_unrolled_window_is_the_models_rollout_and_its_target_the_acceleratio
 
 def test_a_training_step_with_two_unrolled_steps_takes_its_loss_on_the_produced_window(tmp_path):
     data = write_dataset(tmp_path / "data")
-    sims = Simulations(data / "train.npz", torch.device("cpu"))
+    sims = TrainingWindows(data / "train.npz", torch.device("cpu"))
     bounds = torch.tensor(read_metadata(data)["bounds"])
     cfg = config(data, tmp_path / "run", pushforward=2, seed=0)
     ctx = Context(torch.device("cpu"))
@@ -188,7 +188,7 @@ def test_onset_share_draws_windows_from_the_first_frames_of_every_simulation(tmp
     (counted from the earliest start, the windows at rest); 0 draws exactly as before; 0.5 about
     half of them."""
     data = write_dataset(tmp_path / "data", frames=40, n_train=3)
-    sims = Simulations(data / "train.npz", torch.device("cpu"))  # windows at rest: starts from frame -5
+    sims = TrainingWindows(data / "train.npz", torch.device("cpu"))  # windows at rest: starts from frame -5
     first = sims._windows(0)
     uniform = sims.sample(8, torch.Generator().manual_seed(3))
     same = sims.sample(8, torch.Generator().manual_seed(3), onset_share=0.0)

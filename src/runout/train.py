@@ -1,7 +1,7 @@
 """One GNS training loop for CPU, one GPU and many GPUs (torchrun + DistributedDataParallel).
 
 Each step draws `batch_size` windows per process (at the frame stride: positions K frames
-apart; windows of a scene at rest included, runout.gns.samples), perturbs their input
+apart; windows of a scene at rest included, runout.gns.windows), perturbs their input
 positions with random-walk noise whose velocity std is `noise` times the data's velocity std
 (the mean of its x and y std of K-frame differences, m per step), corrects the target
 acceleration, and minimises
@@ -10,7 +10,7 @@ the paper's learning rate lr(i) = (1e-4 - 1e-6) 0.1^(i / 5e6) + 1e-6. With pushf
 each step first draws n uniformly from 0..N, rolls the model out n steps from the true
 windows without gradient, and trains on the window so produced (noise on top) against the
 true frame n steps further on. With mirror S, each window is first reflected left-right about
-the domain's centre with probability S (runout.gns.samples.mirrored). The random numbers of a
+the domain's centre with probability S (runout.gns.windows.mirrored). The random numbers of a
 step come from generators seeded by (seed, step, rank), and n from one seeded by (seed, step)
 alone, so every process unrolls as many steps, and a run resumed from any checkpoint repeats
 exactly what an unbroken run would have done (bitwise on CPU). Under torchrun, the forward goes through the DDP wrapper, which
@@ -41,13 +41,13 @@ from runout.defaults import FRAME_DT
 from runout.errors import InputError, Interrupted
 from runout.gns.checkpoint import read_checkpoint, save_checkpoint, simulator_from_checkpoint
 from runout.gns.checkpoint_checks import check_resumable, check_schema
+from runout.gns.features import Constraints
 from runout.gns.fine_tuning import renormalise, restride, widen_material_features
 from runout.gns.rollout import rollout_trajectory
-from runout.gns.samples import Simulations, mirrored
 from runout.gns.schema import FeatureSchema
-from runout.gns.features import Constraints
-from runout.gns.simulator import Normalisation, Simulator
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 from runout.gns.training import masked_loss, pushforward, training_inputs
+from runout.gns.windows import TrainingWindows, mirrored
 from runout.learned.training_range import measure as measure_ranges
 from runout.metrics import compare
 from runout.outputs import write_atomic
@@ -82,7 +82,7 @@ class Context:
         return self.rank == 0
 
 
-def train(cfg: TrainConfig, hooks: tuple[Hook, ...] = ()) -> Simulator:
+def train(cfg: TrainConfig, hooks: tuple[Hook, ...] = ()) -> GraphNetworkSimulator:
     """Train (or resume, or fine-tune) and return the trained simulator (rank 0's copy).
     Each of `hooks` is called with the Trainer after every step, before logging,
     validation and saving."""
@@ -110,9 +110,9 @@ def _start_processes(device: str) -> Context:
     return Context(dev, rank, world)
 
 
-def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Simulator:
+def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> GraphNetworkSimulator:
     meta = read_metadata(cfg.data)
-    data = Simulations(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"),
+    data = TrainingWindows(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"),
                        rest_windows=cfg.rest_windows, static_tail=cfg.static_tail, frame_dt=float(meta.get("dt", FRAME_DT)))
     simulator, state, cfg = _build(cfg, meta, data)
     cfg = _native_bf16(cfg, ctx)
@@ -156,7 +156,7 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Simu
     return simulator.eval()
 
 
-def _last_step_weights(simulator: Simulator, state: dict | None) -> dict[str, torch.Tensor] | None:
+def _last_step_weights(simulator: GraphNetworkSimulator, state: dict | None) -> dict[str, torch.Tensor] | None:
     """A resumed run that kept a weight average holds it as `model` (now in the simulator) and
     its last step's weights as `train_model`: put those in the simulator, whose optimiser state
     they are, and return the average's parameters (None when there is none)."""
@@ -174,28 +174,28 @@ class WeightAverage:
     the last step's weights, from which --resume goes on. A run that had no average starts
     it from its current weights."""
 
-    def __init__(self, simulator: Simulator, decay: float, start: dict[str, torch.Tensor] | None = None):
+    def __init__(self, simulator: GraphNetworkSimulator, decay: float, start: dict[str, torch.Tensor] | None = None):
         self.decay = decay
         source = start if start is not None else dict(simulator.named_parameters())
         self.values = {n: source[n].detach().float().clone() for n, _ in simulator.named_parameters()}
 
     @torch.no_grad()
-    def update(self, simulator: Simulator) -> None:
+    def update(self, simulator: GraphNetworkSimulator) -> None:
         for name, p in simulator.named_parameters():
             self.values[name].lerp_(p.detach().float(), 1.0 - self.decay)
 
-    def state_dict(self, simulator: Simulator) -> dict:
+    def state_dict(self, simulator: GraphNetworkSimulator) -> dict:
         """simulator.state_dict() with the averaged parameters in place of the last step's."""
         state = simulator.state_dict()
         return {k: (self.values[k].to(v.dtype).clone() if k in self.values else v) for k, v in state.items()}
 
     @torch.no_grad()
-    def copy_to(self, simulator: Simulator) -> None:
+    def copy_to(self, simulator: GraphNetworkSimulator) -> None:
         for name, p in simulator.named_parameters():
             p.copy_(self.values[name])
 
     @contextmanager
-    def applied(self, simulator: Simulator):
+    def applied(self, simulator: GraphNetworkSimulator):
         """The simulator with the averaged weights inside the block, its own after."""
         own = {n: p.detach().clone() for n, p in simulator.named_parameters()}
         self.copy_to(simulator)
@@ -218,10 +218,10 @@ class Trainer:
     such hooks, and train(..., hooks=) adds others before them (a hook that sets
     `stop_reason` ends the run after this step, saved)."""
 
-    simulator: Simulator
+    simulator: GraphNetworkSimulator
     model: torch.nn.Module  # the simulator, or its DDP wrapper under torchrun
     optimizer: torch.optim.Optimizer
-    data: Simulations
+    data: TrainingWindows
     bounds: torch.Tensor  # [dim, 2] m
     cfg: TrainConfig
     ctx: Context
@@ -417,7 +417,7 @@ def _generators(seed: int, step: int, ctx: Context) -> tuple[torch.Generator, to
     return sampler, noise
 
 
-def _build(cfg: TrainConfig, meta: dict, data: Simulations):
+def _build(cfg: TrainConfig, meta: dict, data: TrainingWindows):
     """The simulator to train, the resumed training state (or None) and the settings, after
     checking the options against each other and the data's particle types against the
     model's type table."""
@@ -466,7 +466,7 @@ def _stored_settings(ckpt: dict) -> dict:
     return ckpt["train"] if isinstance(ckpt.get("train"), dict) else {}
 
 
-def _start(cfg: TrainConfig, meta: dict, data: Simulations):
+def _start(cfg: TrainConfig, meta: dict, data: TrainingWindows):
     """The simulator, training state and settings of a resumed, fine-tuned or new run."""
     out = Path(cfg.out)
     if cfg.resume:
@@ -506,10 +506,10 @@ def _start(cfg: TrainConfig, meta: dict, data: Simulations):
     schema = data.schema(FeatureSchema(frame_stride=stride, overburden=bool(cfg.overburden)))
     torch.manual_seed(cfg.seed)
     radius = cfg.radius if cfg.radius is not None else float(meta["default_connectivity_radius"])
-    return Simulator(schema, stats, radius, cfg.network), None, replace(cfg, frame_stride=stride)
+    return GraphNetworkSimulator(schema, stats, radius, cfg.network), None, replace(cfg, frame_stride=stride)
 
 
-def _check_overburden(cfg: TrainConfig, simulator: Simulator, source) -> None:
+def _check_overburden(cfg: TrainConfig, simulator: GraphNetworkSimulator, source) -> None:
     """InputError when --overburden / --no-overburden asks for a network input that the
     checkpoint it continues has not (or has): the node encoder's width is fixed by it."""
     if cfg.overburden is not None and cfg.overburden != simulator.schema.overburden:
@@ -519,7 +519,7 @@ def _check_overburden(cfg: TrainConfig, simulator: Simulator, source) -> None:
                          "or start a new run in another --out.")
 
 
-def _stride_statistics(meta: dict, data: Simulations, stride: int, noise: float) -> Normalisation:
+def _stride_statistics(meta: dict, data: TrainingWindows, stride: int, noise: float) -> Normalisation:
     """Normalisation at `stride` frames per step, with velocity noise of `noise` times the
     mean of the x and y velocity std (m per step)."""
     stats = _statistics(meta, data, stride)
@@ -531,7 +531,7 @@ def noise_scale(stats: dict) -> float:
     return float(sum(stats["vel_std"]) / len(stats["vel_std"]))
 
 
-def _statistics(meta: dict, data: Simulations, stride: int) -> dict:
+def _statistics(meta: dict, data: TrainingWindows, stride: int) -> dict:
     """The normalisation statistics of a new run: metadata.json's (1-frame differences, as the
     generator measured them) at stride 1, else those of the stride's differences measured now
     on the training data."""
@@ -553,7 +553,7 @@ def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: f
     )
 
 
-def _validate(simulator: Simulator, cfg: TrainConfig, log: "RunLog", step: int, best: float) -> float:
+def _validate(simulator: GraphNetworkSimulator, cfg: TrainConfig, log: "RunLog", step: int, best: float) -> float:
     """Roll out the first validation trajectories from rest; keep best.pt by mean position MSE."""
     path = Path(cfg.data) / "valid.npz"
     if not path.is_file():

@@ -35,7 +35,7 @@ from runout.evaluate.model_card import model_card
 from runout.evaluate.sensitivity_figures import draw_loss_histories, draw_rollout_mse
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
-from runout.gns.samples import Simulations
+from runout.gns.windows import TrainingWindows
 from runout.metrics import position_mse
 from runout.simfiles import iter_simulations, read_metadata, write_simulations
 from runout.train import CHECKPOINT, TrainConfig, continued_onset, cpu_has_native_bf16, train
@@ -81,7 +81,7 @@ def write_subset(data: Path, folder: Path, size: int) -> Path:
 def steps_per_epoch(subset: Path, batch_size: int, schema: WindowSchema) -> int:
     """Steps of one pass over the windows training samples from SUBSET/train.npz at the
     schema's history and frame stride (with TrainConfig's rest windows and static tail)."""
-    data = Simulations(subset / "train.npz", torch.device("cpu"), schema.history, rest_windows=TrainConfig.rest_windows,
+    data = TrainingWindows(subset / "train.npz", torch.device("cpu"), schema.history, rest_windows=TrainConfig.rest_windows,
                        static_tail=TrainConfig.static_tail, frame_dt=float(read_metadata(subset).get("dt", FRAME_DT)))
     return max(1, math.ceil(data.with_stride(schema.frame_stride).n_windows / batch_size))
 

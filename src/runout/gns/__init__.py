@@ -5,7 +5,7 @@ runout.contract, below the scene and file layers and torch-free. The package imp
 itself; import from the modules:
 
     runout.gns.schema      the contract's names for the GNS, encode_materials_torch (differentiable codec)
-    runout.gns.simulator   Simulator, NetworkConfig, Normalisation
+    runout.gns.simulator   GraphNetworkSimulator, NetworkConfig, Normalisation
     runout.gns.checkpoint  load_simulator(path, device="cpu"), save_checkpoint
     runout.gns.rollout     rollout(...), rollout_trajectory(...), start_window(...)
     runout.gns.engine      GnsEngine: the GNS behind the learned-engine contract (runout.learned)

@@ -5,7 +5,7 @@ Keys: format, schema (node-feature layout), stats (normalisation), radius (m), n
 (the training settings), train_model (with --ema: the last step's weights, while model holds
 their average, which every command uses), data_ranges (what the model was trained on, see
 runout.learned.training_range; its point_spacing_m is the spacing every GNS command fills a
-scene at, Simulator.point_spacing). Files are written atomically (temporary file, then
+scene at, GraphNetworkSimulator.point_spacing). Files are written atomically (temporary file, then
 os.replace), so a run killed while saving leaves the previous checkpoint intact.
 
 Everything in a checkpoint is plain data (tensors, dicts, lists, numbers, strings), and it
@@ -26,14 +26,14 @@ import torch
 from runout.errors import InputError
 from runout.gns.checkpoint_checks import check_contents
 from runout.gns.schema import FeatureSchema, NetworkConfig
-from runout.gns.simulator import Normalisation, Simulator
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 from runout.learned.files import GNS_FORMAT, read_plain
 
 FORMAT = GNS_FORMAT
 REQUIRED_KEYS = ("format", "schema", "stats", "radius", "network", "model")
 
 
-def checkpoint_dict(simulator: Simulator, **training_state) -> dict:
+def checkpoint_dict(simulator: GraphNetworkSimulator, **training_state) -> dict:
     return {
         "format": FORMAT,
         "schema": simulator.schema.to_dict(),
@@ -46,7 +46,7 @@ def checkpoint_dict(simulator: Simulator, **training_state) -> dict:
     }
 
 
-def save_checkpoint(path: str | Path, simulator: Simulator, **training_state) -> Path:
+def save_checkpoint(path: str | Path, simulator: GraphNetworkSimulator, **training_state) -> Path:
     """Write atomically; training_state (optimizer, step, rng, train, ...) is stored as is."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -72,8 +72,8 @@ def read_checkpoint(path: str | Path) -> dict:
 
 
 
-def simulator_from_checkpoint(ckpt: dict, source: str | Path = "<checkpoint>") -> Simulator:
-    simulator = Simulator(
+def simulator_from_checkpoint(ckpt: dict, source: str | Path = "<checkpoint>") -> GraphNetworkSimulator:
+    simulator = GraphNetworkSimulator(
         FeatureSchema.from_dict(ckpt["schema"]),
         Normalisation.from_dict(ckpt["stats"]),
         ckpt["radius"],
@@ -87,7 +87,7 @@ def simulator_from_checkpoint(ckpt: dict, source: str | Path = "<checkpoint>") -
     return simulator
 
 
-def load_simulator(path: str | Path, device: str | torch.device = "cpu") -> Simulator:
+def load_simulator(path: str | Path, device: str | torch.device = "cpu") -> GraphNetworkSimulator:
     """The simulator stored in a checkpoint, on `device`, in eval mode.
 
     Raises runout.errors.InputError if the file is missing, unreadable, or not a runout
@@ -97,7 +97,7 @@ def load_simulator(path: str | Path, device: str | torch.device = "cpu") -> Simu
     return simulator.to(device).eval()
 
 
-def load_last_step(path: str | Path, device: str | torch.device = "cpu") -> Simulator | None:
+def load_last_step(path: str | Path, device: str | torch.device = "cpu") -> GraphNetworkSimulator | None:
     """The simulator of a checkpoint's last-step weights (train_model, kept beside the weight
     average by `runout train --ema`), on `device`, in eval mode; None when it has none."""
     ckpt = read_checkpoint(path)

@@ -17,7 +17,7 @@ from runout import checks
 from runout.contract import MAX_RADIUS
 from runout.errors import InputError
 from runout.gns.schema import MAX_STEPS, FeatureSchema, NetworkConfig
-from runout.gns.simulator import Normalisation, Simulator
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 from runout.scene.limits import MAX_DOMAIN
 
 
@@ -149,7 +149,7 @@ def _describe(value) -> str:
     return "nothing" if value is None else f"a {type(value).__name__}"
 
 
-def check_resumable(ckpt: dict, simulator: Simulator, path, settings: type) -> None:
+def check_resumable(ckpt: dict, simulator: GraphNetworkSimulator, path, settings: type) -> None:
     """InputError unless `ckpt` holds a training state that continues `simulator`: step, rng,
     optimizer (Adam, one moment per parameter of the model's shape) and train settings whose
     fields are of the types the dataclass `settings` (runout.train.TrainConfig) declares."""
@@ -210,7 +210,7 @@ def _check_table(table: dict, known: set[str], where: str, path, require: bool =
         raise InputError(f"{path}: the checkpoint's {where} lacks the key '{missing[0]}'.")
 
 
-def check_schema(simulator: Simulator, data_schema: FeatureSchema, model_source, data_source) -> None:
+def check_schema(simulator: GraphNetworkSimulator, data_schema: FeatureSchema, model_source, data_source) -> None:
     """Raise InputError naming the first difference between a model's and the data's schema."""
     diff = simulator.schema.difference(data_schema)
     if diff is not None:

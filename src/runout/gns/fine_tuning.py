@@ -12,10 +12,10 @@ from dataclasses import replace
 import torch
 
 from runout.errors import InputError
-from runout.gns.simulator import Normalisation, Simulator, normalisation_buffers
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation, normalisation_buffers
 
 
-def widen_material_features(simulator: Simulator, names: tuple[str, ...], source="<model>") -> Simulator:
+def widen_material_features(simulator: GraphNetworkSimulator, names: tuple[str, ...], source="<model>") -> GraphNetworkSimulator:
     """Add material inputs (e.g. cohesion) with zero weights; predictions do not change."""
     old = simulator.schema.material_features
     if tuple(names[: len(old)]) != tuple(old) or len(names) < len(old):
@@ -28,7 +28,7 @@ def widen_material_features(simulator: Simulator, names: tuple[str, ...], source
     return simulator
 
 
-def renormalise(simulator: Simulator, stats: Normalisation) -> None:
+def renormalise(simulator: GraphNetworkSimulator, stats: Normalisation) -> None:
     """Normalise `simulator` with `stats` from now on, its weights changed so that it predicts
     the same next positions (up to rounding): the node encoder's velocity columns and the
     decoder's last layer absorb the change of the velocity and acceleration scales and means.
@@ -55,7 +55,7 @@ def renormalise(simulator: Simulator, stats: Normalisation) -> None:
     simulator.use_statistics(stats)
 
 
-def restride(simulator: Simulator, stride: int, stats: Normalisation) -> None:
+def restride(simulator: GraphNetworkSimulator, stride: int, stats: Normalisation) -> None:
     """Start a model of another frame stride from `simulator`'s weights (--init with
     --frame-stride K): the schema records K and the normalisation becomes `stats`, those of the
     data's K-frame differences. The network sees inputs and targets normalised as before

@@ -20,7 +20,7 @@ from tqdm.auto import tqdm
 
 from runout.errors import InputError, RolloutDiverged  # noqa: F401  (RolloutDiverged re-exported)
 from runout.gns.features import Constraints
-from runout.gns.simulator import Simulator
+from runout.gns.simulator import GraphNetworkSimulator
 from runout.trajectory import Trajectory
 
 CHECK_EVERY = 10  # steps between host checks for NaN and for a stopped flow
@@ -28,7 +28,7 @@ MIN_FRAMES_BEFORE_STOP = 40  # dataset frames: a slope at rest needs time to sta
 
 
 def rollout(
-    simulator: Simulator,
+    simulator: GraphNetworkSimulator,
     initial_positions: torch.Tensor,
     particle_type: torch.Tensor,
     material: torch.Tensor,
@@ -89,19 +89,19 @@ def start_window(initial: np.ndarray, velocity: np.ndarray, history: int, step_d
     """[history, N, 2] float32 m: the window a rollout starts from, the scene at frame 0 (initial
     [N, 2] m) and before it each point moving at its frame-0 velocity ([N, 2] m/s), one model step
     (step_dt s) apart; a point at rest (zero velocity) is frame 0 held, as the scene at rest is.
-    Training draws the same windows (runout.gns.samples), so a rollout starts where it learned to."""
+    Training draws the same windows (runout.gns.windows), so a rollout starts where it learned to."""
     lag = step_dt * np.arange(history - 1, -1, -1, dtype=np.float64)  # s before frame 0: (history - 1) K dt, ..., 0
     window = np.asarray(initial, dtype=np.float64)[None] - lag[:, None, None] * np.asarray(velocity, dtype=np.float64)[None]
     return window.astype(np.float32)
 
 
-def material_tensor(simulator: Simulator, traj: Trajectory) -> torch.Tensor:
+def material_tensor(simulator: GraphNetworkSimulator, traj: Trajectory) -> torch.Tensor:
     """[N, k] material features of a trajectory, in the width the simulator expects."""
     return torch.from_numpy(traj.material_features(simulator.schema.material_width))
 
 
 def rollout_trajectory(
-    simulator: Simulator,
+    simulator: GraphNetworkSimulator,
     initial: Trajectory,
     n_frames: int,
     stop_speed: float | None = 0.05,
@@ -122,7 +122,7 @@ def rollout_trajectory(
 
 
 def rollout_trajectories(
-    simulator: Simulator,
+    simulator: GraphNetworkSimulator,
     initials: list[Trajectory],
     n_frames: int,
     stop_speed: float | None = 0.05,

@@ -83,7 +83,7 @@ def normalisation_buffers(stats: Normalisation) -> dict[str, torch.Tensor]:
     }
 
 
-class Simulator(nn.Module):
+class GraphNetworkSimulator(nn.Module):
     """GNS: maps a window of `schema.history` positions per point to the next positions."""
 
     def __init__(self, schema: FeatureSchema, stats: Normalisation, radius: float, config: NetworkConfig = NetworkConfig()):

@@ -14,14 +14,14 @@ from __future__ import annotations
 import torch
 
 from runout.gns.features import Constraints
-from runout.gns.simulator import Simulator
+from runout.gns.simulator import GraphNetworkSimulator
 
 
 @torch.no_grad()
-def pushforward(simulator: Simulator, window, steps: int, particle_type, material, constraints: Constraints,
+def pushforward(simulator: GraphNetworkSimulator, window, steps: int, particle_type, material, constraints: Constraints,
                 graph=None) -> torch.Tensor:
     """The window [N, history, 2] (m) after `steps` rollout steps of the model from `window`,
-    without gradient: each step appends its prediction, constrained as in Simulator.step, and
+    without gradient: each step appends its prediction, constrained as in GraphNetworkSimulator.step, and
     drops the oldest position, as runout.gns.rollout does (Brandstetter et al. 2022's
     pushforward: training inputs that carry the model's own errors)."""
     for _ in range(steps):
@@ -30,7 +30,7 @@ def pushforward(simulator: Simulator, window, steps: int, particle_type, materia
     return window
 
 
-def training_inputs(simulator: Simulator, window, next_position, constraints: Constraints, generator: torch.Generator,
+def training_inputs(simulator: GraphNetworkSimulator, window, next_position, constraints: Constraints, generator: torch.Generator,
                     held: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor]:
     """(noisy window [N, history, 2] m, normalised noise-corrected target acceleration
     [N, 2]): random-walk noise of std stats.noise_std on the moving points' inputs, none

@@ -1,4 +1,4 @@
-"""Training samples: windows of `history` positions and the true positions after them, from a split file.
+"""Training windows: `history` positions and the true positions after them, from a split file.
 
 A window at frame stride K starting at frame t holds frames t, t + K, ..., t + (history - 1) K
 and its target is frame t + history K; every start frame t that fits is a window, so every
@@ -57,7 +57,7 @@ class TrainingBatch:
         return self.future.shape[1] - 1
 
 
-class Simulations:
+class TrainingWindows:
     """The simulations of one split file on `device`, sampled in windows at frame stride 1
     (with_stride: the same data at another stride), with 0 or more pushforward steps."""
 
@@ -130,7 +130,7 @@ class Simulations:
             self._first_window[unroll] = first
         return self._first_window[unroll]
 
-    def with_stride(self, stride: int) -> "Simulations":
+    def with_stride(self, stride: int) -> "TrainingWindows":
         """The same simulations (the same device tensors), sampled at frame stride `stride`."""
         if stride == self.stride:
             return self
