@@ -137,7 +137,7 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Grap
         optimizer=optimizer, data=data, bounds=torch.tensor(meta["bounds"], dtype=torch.float32, device=ctx.device),
         cfg=cfg, ctx=ctx, log=RunLog(Path(cfg.out), ctx, state["step"] if state else 0, cfg.progress),
         best=state.get("best_valid", float("inf")) if state else float("inf"),
-        hooks=(*hooks, log_losses, validate, save), average=average,
+        hooks=(*hooks, log_losses, score_on_valid, save_when_due), average=average,
     )
     deadline = time.monotonic() + cfg.max_hours * 3600 if cfg.max_hours > 0 else None
     with StopRequest(deadline) as stop:
@@ -214,8 +214,8 @@ Hook = Callable[["Trainer"], None]
 class Trainer:
     """The training loop and its periodic duties. Each step sets the learning rate of the
     schedule, takes one optimiser step (_train_step), then calls every hook in turn with the
-    trainer, whose `done` is the number of steps taken; logging, validation and saving are
-    such hooks, and train(..., hooks=) adds others before them (a hook that sets
+    trainer, whose `done` is the number of steps taken; logging, scoring on the valid split and
+    saving are such hooks, and train(..., hooks=) adds others before them (a hook that sets
     `stop_reason` ends the run after this step, saved)."""
 
     simulator: GraphNetworkSimulator
@@ -252,7 +252,7 @@ class Trainer:
                 hook(self)
             if stop.agreed(self.ctx) or self.stop_reason is not None:
                 if self.saved_at != self.done:
-                    self.save()
+                    self.write_checkpoint()
                 break
         return self.done
 
@@ -260,10 +260,18 @@ class Trainer:
         """Whether a duty of period `every` steps (0: never) falls on this step; the last step always does."""
         return bool(every) and (self.done % every == 0 or self.done == self.cfg.steps)
 
-    def save(self) -> None:
+    def write_checkpoint(self) -> None:
+        """OUT/checkpoint.pt (written atomically): the model (the weight average with --ema, and
+        the last step's weights as train_model), Adam's state, the step, the settings, the RNG
+        and the best validation score; every keep_every steps also a copy in snapshots/."""
         if self.ctx.writer:
-            path = _save(Path(self.cfg.out) / CHECKPOINT, self.simulator, self.optimizer, self.done, self.cfg,
-                         self.best, self.average)
+            weights = ({"model": self.average.state_dict(self.simulator), "train_model": self.simulator.state_dict()}
+                       if self.average else {})
+            path = save_checkpoint(
+                Path(self.cfg.out) / CHECKPOINT, self.simulator, optimizer=self.optimizer.state_dict(), step=self.done,
+                train=_settings(self.cfg), rng={"seed": self.cfg.seed, "torch": torch.get_rng_state()},
+                best_valid=self.best, **weights,
+            )
             if self.cfg.keep_every and self.done % self.cfg.keep_every == 0:
                 keep(path, Path(self.cfg.out) / SNAPSHOTS / f"step-{self.done}.pt")
         self.saved_at = self.done
@@ -285,19 +293,20 @@ def log_losses(trainer: Trainer) -> None:
         trainer.losses = []
 
 
-def validate(trainer: Trainer) -> None:
-    """Every valid_every steps, rollouts from rest on the validation set; best.pt kept."""
+def score_on_valid(trainer: Trainer) -> None:
+    """Every valid_every steps, rollouts from rest of the valid split's first scenes (with the
+    weight average under --ema); best.pt kept."""
     cfg = trainer.cfg
     if cfg.valid_every and trainer.done % cfg.valid_every == 0 and trainer.ctx.writer:
         with trainer.average.applied(trainer.simulator) if trainer.average else nullcontext(trainer.simulator) as model:
-            trainer.best = _validate(model, cfg, trainer.log, trainer.done, trainer.best)
+            trainer.best = _valid_rollouts(model, cfg, trainer.log, trainer.done, trainer.best)
 
 
-def save(trainer: Trainer) -> None:
+def save_when_due(trainer: Trainer) -> None:
     """Every save_every steps and at the last, the checkpoint (written atomically); also every
-    keep_every steps, which keeps a copy of it (Trainer.save)."""
+    keep_every steps, which keeps a copy of it (Trainer.write_checkpoint)."""
     if trainer.due(trainer.cfg.save_every) or trainer.due(trainer.cfg.keep_every):
-        trainer.save()
+        trainer.write_checkpoint()
 
 
 class StopRequest:
@@ -543,17 +552,7 @@ def _settings(cfg: TrainConfig) -> dict:
     return {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
 
 
-def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: float,
-          average: WeightAverage | None = None) -> Path:
-    train_settings = _settings(cfg)
-    weights = {"model": average.state_dict(simulator), "train_model": simulator.state_dict()} if average else {}
-    return save_checkpoint(
-        path, simulator, optimizer=optimizer.state_dict(), step=step, train=train_settings,
-        rng={"seed": cfg.seed, "torch": torch.get_rng_state()}, best_valid=best, **weights,
-    )
-
-
-def _validate(simulator: GraphNetworkSimulator, cfg: TrainConfig, log: "RunLog", step: int, best: float) -> float:
+def _valid_rollouts(simulator: GraphNetworkSimulator, cfg: TrainConfig, log: "RunLog", step: int, best: float) -> float:
     """Roll out the first validation trajectories from rest; keep best.pt by mean position MSE."""
     path = Path(cfg.data) / "valid.npz"
     if not path.is_file():
