@@ -124,7 +124,7 @@ def test_the_data_layer_loads_without_torch():
 
 def test_the_command_line_starts_without_torch_or_matplotlib():
     """`runout --help` and every command's options load only the settings they derive from
-    (runout.train_settings, runout.evaluate.cases, ...); the engines load when a command runs."""
+    (runout.train_settings, runout.evaluate.study_settings, ...); the engines load when a command runs."""
     code = ("import runout.cli, sys; heavy = [m for m in ('torch', 'matplotlib', 'scipy', 'warp') if m in sys.modules]; "
             "assert not heavy, heavy")
     subprocess.run([sys.executable, "-c", code], check=True)

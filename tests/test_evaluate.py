@@ -129,7 +129,7 @@ def test_a_second_columns_run_reads_the_mpm_from_the_cache(studies, tmp_path, mo
 
 
 def test_a_study_runs_the_mpm_and_the_gns_at_the_models_spacing(tmp_path):
-    from runout.evaluate import EngineRun, run_columns
+    from runout.evaluate import StudyContext, run_columns
     from runout.evaluate.columns import ColumnGrid
     from runout.gns.checkpoint import load_simulator
     from runout.learned.training_range import point_spacing
@@ -140,7 +140,7 @@ def test_a_study_runs_the_mpm_and_the_gns_at_the_models_spacing(tmp_path):
     simulator.data_ranges = {"point_spacing_m": 5.0}  # trained at 10 m cells; the example columns have 4 m
     save_checkpoint(tmp_path / "coarse.pt", simulator)
     lines = []
-    run = EngineRun(MpmCache(tmp_path / "cache"), progress=False, log=lines.append)
+    run = StudyContext(MpmCache(tmp_path / "cache"), progress=False, log=lines.append)
     summary = run_columns(tmp_path / "coarse.pt", tmp_path / "out", ColumnGrid((1.0,), (22.5,), (25.0,), 8, 0.2), run)
     assert lines == ["filling column_a1.toml at the model's 5 m spacing (10 m cells) instead of the scene's 4 m cells"]
     mpm_dir = tmp_path / "cache" / summary["percentile_cases"]["50"]["mpm_key"]

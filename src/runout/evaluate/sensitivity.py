@@ -30,9 +30,9 @@ from runout.contract import WindowSchema
 from runout.dataset import split_trajectories
 from runout.defaults import FRAME_DT
 from runout.errors import InputError
-from runout.evaluate.cases import BUDGETS, PAPER_SIZES, SensitivityConfig  # noqa: F401  (re-exported)
 from runout.evaluate.model_card import model_card
 from runout.evaluate.sensitivity_figures import draw_loss_histories, draw_rollout_mse
+from runout.evaluate.study_settings import BUDGETS, PAPER_SIZES, SensitivityConfig  # noqa: F401  (re-exported)
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.windows import TrainingWindows
