@@ -69,7 +69,7 @@ def _flip(table: dict, source: str) -> float | str:
 
 
 def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
-    """Build and validate a Scene from the dictionary form of a scene file."""
+    """Build and check a Scene from the dictionary form of a scene file."""
     check_keys(data, _TOP_KEYS, "top level", source)
     for required in ("domain", "materials", "regions"):
         if required not in data:
