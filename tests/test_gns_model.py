@@ -192,17 +192,9 @@ def test_the_case_holds_kinematic_points_and_keeps_the_rest_inside_the_walls():
     assert torch.equal(out, torch.tensor([[0.0, 2.0], [2.0, 0.5], [10.0, 5.0]]))
 
 
-def test_the_moving_weight_counts_moving_points_that_many_times():
-    from runout.gns.windows import TrainingBatch
-    from runout.train import MOVING_SPEED, _moving_weights
-
-    dt = 0.0375  # s per step
-    window = torch.zeros((3, 6, 2))
-    step = torch.tensor([[0.0, 0.0], [2 * MOVING_SPEED * dt, 0.0], [0.0, 0.5 * MOVING_SPEED * dt]])  # still, moving, slow
-    batch = TrainingBatch(window, step[:, None], torch.tensor([6, 6, 3]), torch.zeros((3, 0)), torch.zeros(3, dtype=torch.long))
-    weights = _moving_weights(batch, 4.0, dt)
-    assert weights.tolist() == [1.0, 4.0, 1.0] and _moving_weights(batch, 1.0, dt) is None
-    constraints = Constraints.of(batch.particle_type, [[0.0, 10.0], [0.0, 10.0]])  # the third point is kinematic: no loss
+def test_the_loss_is_a_weighted_mean_over_the_points_that_move():
+    constraints = Constraints.of(torch.tensor([6, 6, 3]), [[0.0, 10.0], [0.0, 10.0]])  # the third point is kinematic: no loss
+    weights = torch.tensor([1.0, 4.0, 1.0])
     predicted, target = torch.zeros((3, 2)), torch.tensor([[1.0, 0.0], [2.0, 0.0], [5.0, 0.0]])
     assert masked_loss(predicted, target, constraints, weights).item() == pytest.approx((1.0 + 4.0 * 4.0) / 5.0)
     assert masked_loss(predicted, target, constraints).item() == pytest.approx((1.0 + 4.0) / 2.0)

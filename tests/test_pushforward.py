@@ -184,7 +184,7 @@ def test_the_pushforward_option_checks_its_range(tmp_path, capsys, value):
 
 
 def test_onset_share_draws_windows_from_the_first_frames_of_every_simulation(tmp_path):
-    """--onset-share 1: every window starts in its simulation's first --onset-frames frames
+    """An onset share of 1: every window starts in its simulation's first onset frames
     (counted from the earliest start, the windows at rest); 0 draws exactly as before; 0.5 about
     half of them."""
     data = write_dataset(tmp_path / "data", frames=40, n_train=3)
@@ -213,23 +213,23 @@ def test_onset_share_draws_windows_from_the_first_frames_of_every_simulation(tmp
 
 
 def test_an_onset_schedule_is_the_phases_run_one_after_another(tmp_path):
-    """--onset-schedule "0:0.4:4,6:0.1:2" trains exactly as 6 steps at --onset-share 0.4
-    --onset-frames 4 and then a --resume to step 12 at 0.1 and 2: the recipe's phases
-    (docs/training.md) in one resumable command."""
+    """--onset-schedule "0:0.4:4,6:0.1:2" trains exactly as 6 steps of "0:0.4:4" and then a
+    --resume to step 12 with "0:0.1:2": the recipe's phases (docs/training.md) in one resumable
+    command."""
     data = write_dataset(tmp_path / "data", frames=40, n_train=3)
     scheduled = train(config(data, tmp_path / "scheduled", steps=12, pushforward=1,
                              onset_schedule=parse_onset_schedule("0:0.4:4,6:0.1:2")))
-    train(config(data, tmp_path / "phases", steps=6, pushforward=1, onset_share=0.4, onset_frames=4))
-    phases = train(config(data, tmp_path / "phases", steps=12, pushforward=1, onset_share=0.1, onset_frames=2, resume=True))
+    train(config(data, tmp_path / "phases", steps=6, pushforward=1, onset_schedule=((0, 0.4, 4),)))
+    phases = train(config(data, tmp_path / "phases", steps=12, pushforward=1, onset_schedule=((0, 0.1, 2),), resume=True))
     assert same_weights(scheduled, phases) and log_lines(tmp_path / "scheduled") == log_lines(tmp_path / "phases")
     uniform = train(config(data, tmp_path / "uniform", steps=12, pushforward=1))
     assert not same_weights(scheduled, uniform)  # the schedule did draw other windows
 
 
 def test_onset_at_follows_the_last_entry_begun():
-    cfg = config("d", "o", onset_share=0.2, onset_frames=7, onset_schedule=parse_onset_schedule("10:0.4:4, 20:0:2"))
-    assert [onset_at(cfg, s) for s in (0, 9, 10, 19, 20, 10**6)] == [(0.2, 7), (0.2, 7), (0.4, 4), (0.4, 4), (0.0, 2), (0.0, 2)]
-    assert parse_onset_schedule("") == ()
+    cfg = config("d", "o", onset_schedule=parse_onset_schedule("10:0.4:4, 20:0:2"))
+    assert [onset_at(cfg, s) for s in (0, 9, 10, 19, 20, 10**6)] == [(0.0, 1), (0.0, 1), (0.4, 4), (0.4, 4), (0.0, 2), (0.0, 2)]
+    assert parse_onset_schedule("") == () and onset_at(config("d", "o", onset_schedule=()), 5) == (0.0, 1)
 
 
 @pytest.mark.parametrize("value, words", [
@@ -244,15 +244,19 @@ def test_a_bad_onset_schedule_is_exit_2_before_any_work(tmp_path, capsys, value,
     assert not (tmp_path / "run").exists()
 
 
-def test_the_recipe_as_options_gives_the_recipe(tmp_path, capsys, monkeypatch):
-    """`runout train` with recipe_options() trains with exactly RECIPE's settings (the campaign's
-    scripts pass the recipe that way)."""
+def test_the_recipe_is_the_default_and_its_options_give_it(tmp_path, capsys, monkeypatch):
+    """`runout train` without options trains with the recipe (TrainConfig's defaults), and with
+    recipe_options() (as the campaign's scripts pass it) with exactly the same settings."""
     import runout.train
-    from runout.train_settings import RECIPE, recipe_options
+    from runout.train_settings import RECIPE, TrainConfig, recipe_options, recipe_settings
 
     seen = []
     monkeypatch.setattr(runout.train, "train", lambda cfg: seen.append(cfg))
     data = write_dataset(tmp_path / "data")
-    code, err = run(["train", "--data", data, "--out", tmp_path / "run", *recipe_options()], capsys)
-    assert code == 0, err
-    assert {name: getattr(seen[0], name) for name in RECIPE} == RECIPE
+    for options in ([], recipe_options()):
+        code, err = run(["train", "--data", data, "--out", tmp_path / "run", *options], capsys)
+        assert code == 0, err
+    default, explicit = ({name: getattr(cfg, name) for name in RECIPE} for cfg in seen)
+    assert explicit == recipe_settings() and default == {**recipe_settings(), "overburden": None}  # None: on for a new run
+    assert recipe_settings()["onset_schedule"] == TrainConfig.onset_schedule == ((0, 0.4, 4), (12_000, 0.5, 2), (20_000, 0.1, 4))
+    assert (TrainConfig.noise, TrainConfig.pushforward, TrainConfig.ema, TrainConfig.mirror) == (0.01, 2, 0.999, 0.5)

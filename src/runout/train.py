@@ -61,7 +61,6 @@ CHECKPOINT = "checkpoint.pt"
 BEST = "best.pt"
 LOG = "log.jsonl"
 SNAPSHOTS = "snapshots"  # --keep-every: copies of the checkpoint, step-<N>.pt
-MOVING_SPEED = 0.25  # m/s: a point faster than this over its target step is moving (0.0094 m per 1-frame step)
 
 
 def learning_rate(step: int, cfg: TrainConfig) -> float:
@@ -113,7 +112,7 @@ def _start_processes(device: str) -> Context:
 def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> GraphNetworkSimulator:
     meta = read_metadata(cfg.data)
     data = TrainingWindows(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"),
-                       rest_windows=cfg.rest_windows, static_tail=cfg.static_tail, frame_dt=float(meta.get("dt", FRAME_DT)))
+                            rest_windows=cfg.rest_windows, frame_dt=float(meta.get("dt", FRAME_DT)))
     simulator, state, cfg = _build(cfg, meta, data)
     cfg = _native_bf16(cfg, ctx)
     data = data.with_stride(simulator.frame_stride)
@@ -391,22 +390,11 @@ def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> to
     noisy, target = training_inputs(simulator, window, batch.future[:, -1], constraints, noise_gen, held)
     with autocast:  # through `model`, the DDP wrapper under torchrun, so gradients synchronise
         predicted = model(noisy, batch.particle_type, batch.material, constraints.bounds, batch.graph, cfg.checkpoint_layers)
-    loss = masked_loss(predicted, target, constraints, _moving_weights(batch, cfg.moving_weight, data.frame_dt * data.stride))
+    loss = masked_loss(predicted, target, constraints)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     optimizer.step()
     return loss
-
-
-def _moving_weights(batch, moving_weight: float, step_dt: float) -> torch.Tensor | None:
-    """[N] loss weights: moving_weight for the points whose true target step (step_dt s long)
-    is faster than MOVING_SPEED, 1 for the others (None when moving_weight is 1: every point
-    counts the same)."""
-    if moving_weight == 1.0:
-        return None
-    before = batch.future[:, -2] if batch.unroll else batch.window[:, -1]  # the true frame before the target
-    moving = (batch.future[:, -1] - before).norm(dim=1) > MOVING_SPEED * step_dt  # m per step
-    return torch.where(moving, moving_weight, 1.0)
 
 
 def unrolled_steps(seed: int, step: int, pushforward: int) -> int:
@@ -512,7 +500,7 @@ def _start(cfg: TrainConfig, meta: dict, data: TrainingWindows):
         return simulator, None, replace(cfg, lr_step_offset=offset, frame_stride=simulator.frame_stride)
     stride = cfg.frame_stride or 1
     stats = _stride_statistics(meta, data, stride, cfg.noise)
-    schema = data.schema(FeatureSchema(frame_stride=stride, overburden=bool(cfg.overburden)))
+    schema = data.schema(FeatureSchema(frame_stride=stride, overburden=cfg.overburden is not False))
     torch.manual_seed(cfg.seed)
     radius = cfg.radius if cfg.radius is not None else float(meta["default_connectivity_radius"])
     return GraphNetworkSimulator(schema, stats, radius, cfg.network), None, replace(cfg, frame_stride=stride)
@@ -560,8 +548,7 @@ def _valid_rollouts(simulator: GraphNetworkSimulator, cfg: TrainConfig, log: "Ru
     results = []
     simulator.eval()
     for truth in split_trajectories(cfg.data, "valid", cfg.valid_trajectories):
-        frames = cfg.valid_frames or truth.n_frames
-        predicted = rollout_trajectory(simulator, truth, min(frames, truth.n_frames), stop_speed=None)  # from rest
+        predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None)  # from rest
         results.append(compare(predicted, truth))
     simulator.train()
     mse = sum(r["position_mse_mean_m2"] for r in results) / len(results)
