@@ -146,17 +146,47 @@ def test_the_contract_holds_only_what_every_learned_engine_shares():
     assert not names & GNS_ONLY, sorted(names & GNS_ONLY)
 
 
-def test_commands_reach_the_learned_engines_only_through_the_contract():
-    """A command module takes any learned engine through runout.learned (load_engine), never
-    one engine's package; an engine's package never imports another engine's."""
+# Modules that serve every learned engine: they reach one only through runout.learned.load.
+ANY_ENGINE = ("runout.cli", "runout.compare", "runout.rollout_run", "runout.demo", "runout.inverse",
+              "runout.evaluate.heldout", "runout.evaluate.heldout_run", "runout.evaluate.columns", "runout.evaluate.slope",
+              "runout.evaluate.diagnostics", "runout.evaluate.inverse_study", "runout.contract", "runout.learned")
+ENGINE_LOADER = "runout.learned.load"  # the one module that opens each engine's package, by the file's engine
+
+
+def _package(module: str, packages) -> str | None:
+    return next((p for p in packages if module == p or module.startswith(p + ".")), None)
+
+
+def engine_leaks() -> list[str]:
+    """Imports of an engine's package by a module that serves every engine (a command module
+    above all), and by another engine's package."""
     leaks = []
     for path in sorted(PACKAGE.rglob("*.py")):
         module = module_name(path)
-        own = next((p for p in ENGINE_PACKAGES if module == p or module.startswith(p + ".")), None)
-        for imported in imported_modules(path):
-            engine = next((p for p in ENGINE_PACKAGES if imported == p or imported.startswith(p + ".")), None)
-            if engine is None:
+        own = _package(module, ENGINE_PACKAGES)
+        for imported in imported_modules(path, type_only=True):
+            engine = _package(imported, ENGINE_PACKAGES)
+            if engine is None or module == ENGINE_LOADER:
                 continue
-            if module.startswith("runout.cli") or (own is not None and engine != own):
+            if _package(module, ANY_ENGINE) or (own is not None and engine != own):
                 leaks.append(f"{module} imports {imported}")
+    return leaks
+
+
+def test_commands_reach_the_learned_engines_only_through_the_contract():
+    """A command module (and every module that serves any learned engine: compare, rollout,
+    the demo, the inverse, the engine-blind studies, the contract) takes a learned engine through
+    runout.learned (load_engine), never one engine's package; gns/ never imports the neural MPM,
+    nor the neural MPM gns/."""
+    leaks = engine_leaks()
     assert not leaks, "\n".join(leaks)
+
+
+def test_the_engine_check_sees_a_command_that_imports_the_gns(tmp_path, monkeypatch):
+    for folder, source in (("cli", "from runout.gns.rollout import rollout\n"),
+                           ("gns", "def f():\n    import runout.neural_mpm.engine\n")):
+        (tmp_path / "runout" / folder).mkdir(parents=True)
+        (tmp_path / "runout" / folder / "leak.py").write_text(source)
+    monkeypatch.setattr(sys.modules[__name__], "PACKAGE", tmp_path / "runout")
+    assert sorted(engine_leaks()) == ["runout.cli.leak imports runout.gns.rollout",
+                                      "runout.gns.leak imports runout.neural_mpm.engine"]
