@@ -19,9 +19,9 @@ from dataclasses import dataclass
 import torch
 
 from runout.gns.graph import radius_graph
-from runout.gns.samples import TrainingBatch
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
+from runout.gns.windows import TrainingBatch
 from runout.train import Context, TrainConfig, _train_step
 
 REFERENCE = {"rollout_s": 3.22, "train_s": 25.2, "train_peak_gib": 9.6}  # geoelements/gns, this 2-core CPU
@@ -40,7 +40,7 @@ def lattice_window(seed: int, device, frames: int = 7) -> torch.Tensor:
 
 @dataclass
 class LatticeData:
-    """Stands in for runout.gns.samples.Simulations: always the same two lattice graphs
+    """Stands in for runout.gns.windows.TrainingWindows: always the same two lattice graphs
     (of at least 7 + unroll frames)."""
 
     frames: list[torch.Tensor]
@@ -88,7 +88,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     device = torch.device(args.device)
     torch.manual_seed(0)
-    sim = Simulator(FeatureSchema(material_features=("tan_phi",)), STATS, RADIUS, NetworkConfig()).to(device)
+    sim = GraphNetworkSimulator(FeatureSchema(material_features=("tan_phi",)), STATS, RADIUS, NetworkConfig()).to(device)
     bounds = torch.tensor(BOUNDS, device=device)
     frames = [lattice_window(s, device) for s in (0, 1)]
     n = frames[0].shape[0]

@@ -26,8 +26,8 @@ import torch
 
 from runout.gns.checkpoint import load_simulator
 from runout.gns.engine import GnsEngine
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 from runout.inverse import load_inverse_spec
 from runout.inverse.forward import inverse_problem
 from runout.inverse.mpm_fd import MpmFiniteDifference
@@ -39,11 +39,11 @@ SPEC = REPO / "examples" / "dam_inverse.toml"
 STATS = Normalisation((0.0, -0.01), (0.05, 0.05), (0.0, -1e-3), (5e-3, 5e-3), 0.067 * 0.0375)  # as bench/gns.py
 
 
-def simulator_for(model: str | None, device: str) -> tuple[Simulator, str]:
+def simulator_for(model: str | None, device: str) -> tuple[GraphNetworkSimulator, str]:
     if model:
         return load_simulator(model, device), model
     torch.manual_seed(0)
-    return Simulator(FeatureSchema(), STATS, 4.6, NetworkConfig()).to(device).eval(), "random full-size GNS"
+    return GraphNetworkSimulator(FeatureSchema(), STATS, 4.6, NetworkConfig()).to(device).eval(), "random full-size GNS"
 
 
 def dam_observation(spec, steps: int) -> Observation:

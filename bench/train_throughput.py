@@ -26,9 +26,10 @@ import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
 
-from runout.contract import RADIUS_PER_SPACING as DEFAULT_SPACINGS, FeatureSchema
-from runout.gns.samples import Simulations
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.contract import RADIUS_PER_SPACING as DEFAULT_SPACINGS
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
+from runout.gns.windows import TrainingWindows
 from runout.simfiles import read_metadata
 from runout.train import Context, TrainConfig, _train_step, noise_scale
 
@@ -36,13 +37,14 @@ NETWORK = NetworkConfig(latent=64, hidden=64, hidden_layers=2, message_passing_s
 
 
 
-def build(data_dir: Path, radius_spacings: float, device: torch.device) -> tuple[Simulator, Simulations, torch.Tensor]:
+def build(data_dir: Path, radius_spacings: float,
+          device: torch.device) -> tuple[GraphNetworkSimulator, TrainingWindows, torch.Tensor]:
     meta = read_metadata(data_dir)
-    data = Simulations(data_dir / "train.npz", device, material_names=meta.get("material_features"))
+    data = TrainingWindows(data_dir / "train.npz", device, material_names=meta.get("material_features"))
     stats = Normalisation.from_metadata(meta, 0.3 * noise_scale(meta))
     radius = float(meta["default_connectivity_radius"]) * radius_spacings / DEFAULT_SPACINGS
     torch.manual_seed(0)
-    simulator = Simulator(data.schema(FeatureSchema()), stats, radius, NETWORK).to(device).train()
+    simulator = GraphNetworkSimulator(data.schema(FeatureSchema()), stats, radius, NETWORK).to(device).train()
     return simulator, data, torch.tensor(meta["bounds"], dtype=torch.float32, device=device)
 
 

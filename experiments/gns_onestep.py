@@ -31,7 +31,7 @@ import torch
 def onestep_rows(simulator, truths, frames: list[int]) -> list[dict]:
     """One row per target frame: rms of truth and prediction, slope, correlation, mse (module docstring)."""
     from runout.gns.rollout import material_tensor
-    from runout.gns.simulator import Case
+    from runout.gns.features import Constraints
 
     history, stride = simulator.schema.history, simulator.frame_stride
     pairs = {t: ([], []) for t in frames}
@@ -40,14 +40,14 @@ def onestep_rows(simulator, truths, frames: list[int]) -> list[dict]:
         padded = np.concatenate([np.repeat(pos[:1], history - 1, axis=0), pos])  # at rest before step 0
         ptype = torch.from_numpy(truth.particle_type)
         material = material_tensor(simulator, truth).float()
-        case = Case.of(ptype, torch.as_tensor(truth.bounds, dtype=torch.float32))
-        soil = case.movable.numpy()
+        constraints = Constraints.of(ptype, torch.as_tensor(truth.bounds, dtype=torch.float32))
+        soil = constraints.movable.numpy()
         for t in frames:
             if t >= len(pos):
                 continue
             window = torch.from_numpy(np.ascontiguousarray(padded[t - 1: t - 1 + history].transpose(1, 0, 2)))
             with torch.no_grad():
-                predicted = simulator(window, ptype, material, case.bounds).float().numpy()
+                predicted = simulator(window, ptype, material, constraints.bounds).float().numpy()
             last, before = padded[t + history - 2], padded[t + history - 3]
             target = simulator.normalise_acceleration(torch.from_numpy(pos[t] - 2 * last + before)).numpy()
             pairs[t][0].append(predicted[soil])

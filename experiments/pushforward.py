@@ -22,8 +22,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))  # the lattice graphs of bench/gns.py
 from gns import BOUNDS, RADIUS, STATS, LatticeData, lattice_window  # noqa: E402
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import GraphNetworkSimulator
 from runout.train import Context, TrainConfig, _train_step, unrolled_steps
 
 
@@ -50,7 +50,7 @@ def main() -> None:
     device = torch.device("cpu")
     torch.manual_seed(0)
     network = NetworkConfig(args.latent, args.latent, 2, args.message_passing_steps)
-    sim = Simulator(FeatureSchema(material_features=("tan_phi",)), STATS, RADIUS, network).train()
+    sim = GraphNetworkSimulator(FeatureSchema(material_features=("tan_phi",)), STATS, RADIUS, network).train()
     data = LatticeData([lattice_window(s, device, frames=7 + args.pushforward) for s in (0, 1)])
     cfg = TrainConfig(data=None, out=None, bf16=args.bf16, pushforward=args.pushforward)
     optimizer = torch.optim.Adam(sim.parameters(), lr=1e-6)

@@ -14,7 +14,8 @@
 # (weights + Adam state + step) and its log back to models/, ready to commit. The fine-tune's
 # resumable run is models/slope-train.pt; the shipped models/slope.pt is whichever file of the
 # run (its last or its best.pt) does best on 16 held-out scenes from rest (docs/training.md). The settings
-# are runout.train_settings.RECIPE, the recipe chosen by the pilots in docs/training.md.
+# are the recipe chosen by the pilots in docs/training.md (runout.train_settings.TrainConfig's
+# defaults), passed explicitly (recipe_options) so that the chunk says what it trains with.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 stage=${1:?usage: cpu_chunk.sh pilot|base|finetune HOURS}
@@ -27,7 +28,8 @@ onset=${ONSET:-}               # ONSET="0:0.4:4,12000:0.5:2" replaces the recipe
 CELL=8          # m; 2 x 2 points per cell -> 4 m point spacing
 FRAMES=480
 NET=(--latent 64 --hidden 64 --message-passing-steps 5 --batch-size 2)
-# The recipe (runout.train_settings.RECIPE, chosen by the pilots in docs/training.md, rounds 8-10):
+# The recipe (TrainConfig's defaults, runout.train_settings.RECIPE names them; chosen by the pilots
+# in docs/training.md, rounds 8-10):
 # learning rate and decay, noise 0.01 of the velocity std, no noise on the scene at rest,
 # pushforward 2, a weight average, the onset of motion drawn in three phases, the overburden
 # input, and half the windows mirrored left-right (--mirror 0.5, from fine-tune chunk 7)

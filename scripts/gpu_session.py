@@ -16,7 +16,7 @@ In one wall-clock budget it
    cumulative step and the list of sessions that made it), log.jsonl, session.json
    (figures of this session) and eval.png.
 
-Training uses the recipe (runout.train_settings.RECIPE), and a committed checkpoint trained
+Training uses the recipe (runout.train_settings.TrainConfig's defaults), and a committed checkpoint trained
 before it (solver 3) is never a start. The weights file holds no optimiser state (Adam's moments would make it three times larger
 than the 16 MB a shipped model may take), so Adam restarts each session; the learning rate
 continues from the cumulative step. Needs torch, numpy, scipy, matplotlib and tqdm; not typer.
@@ -87,7 +87,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--models", type=Path, default=Path("models"), help="Folder of the committed checkpoints.")
     p.add_argument("--init", type=Path, default=None, help="Start from this checkpoint instead of the ones in --models.")
     p.add_argument("--device", default="auto", help="auto, cpu or cuda.")
-    p.add_argument("--lr", type=float, default=None, help="Initial learning rate (default: the recipe's, runout.train_settings.RECIPE).")
+    p.add_argument("--lr", type=float, default=None, help="Initial learning rate (default: the recipe's, TrainConfig.lr_init).")
     p.add_argument("--latent", type=int, default=128, help="Latent and hidden width (random start only).")
     p.add_argument("--message-passing", type=int, default=10, help="Processor steps (random start only).")
     p.add_argument("--bf16", action="store_true", help="Autocast the network to bfloat16.")
@@ -193,13 +193,12 @@ def _misfit(path: Path, meta: dict) -> str | None:
 
 def train_for_budget(args: argparse.Namespace, init: Path | None, budget: Budget) -> dict:
     """Train in chunks until the budget is spent; the measured rates and step count."""
-    from runout.gns.simulator import NetworkConfig
+    from runout.gns.schema import NetworkConfig
     from runout.train import TrainConfig, continued_onset, train
-    from runout.train_settings import RECIPE
 
     shutil.rmtree(args.run, ignore_errors=True)
     network = NetworkConfig(latent=args.latent, hidden=args.latent, message_passing_steps=args.message_passing)
-    recipe = RECIPE | ({"lr_init": args.lr} if args.lr is not None else {}) | continued_onset(init)
+    recipe = ({"lr_init": args.lr} if args.lr is not None else {}) | continued_onset(init)  # the rest: TrainConfig's defaults
     cfg = TrainConfig(
         data=args.data, out=args.run, steps=MEASURE_STEPS, device=args.device, init=init,
         network=network, bf16=args.bf16, valid_every=0, log_every=10, save_every=10**9, **recipe,

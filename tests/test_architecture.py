@@ -50,10 +50,11 @@ def _type_checking_only(tree: ast.Module) -> set[int]:
     return skipped
 
 
-def imported_modules(path: Path) -> set[str]:
-    """Every runout module `path` imports, at the top or inside a function."""
+def imported_modules(path: Path, type_only: bool = False) -> set[str]:
+    """Every runout module `path` imports, at the top or inside a function; with type_only,
+    also those it imports only for type names (under `if TYPE_CHECKING:`)."""
     tree = ast.parse(path.read_text())
-    skipped = _type_checking_only(tree)
+    skipped = set() if type_only else _type_checking_only(tree)
     found = set()
     for node in ast.walk(tree):
         if id(node) in skipped:
@@ -79,6 +80,31 @@ def test_no_module_imports_from_a_higher_layer():
     assert not upward, "\n".join(upward)
 
 
+def test_no_modules_import_each_other():
+    """No circle of imports, not even one closed by imports for type names only: a module that
+    needs another's types sits above it (scene.model below scene.seeding, families above
+    plots.families)."""
+    graph = {module_name(path): imported_modules(path, type_only=True) for path in sorted(PACKAGE.rglob("*.py"))}
+    circles = []
+    for start in graph:
+        path, seen = _circle_from(start, graph, [start], set())
+        if path and min(path) == start:  # each circle once, from its smallest module
+            circles.append(" -> ".join(path))
+    assert not circles, "\n".join(circles)
+
+
+def _circle_from(module: str, graph: dict, path: list[str], seen: set[str]):
+    for imported in sorted(graph.get(module, ())):
+        if imported == path[0] and len(path) > 1:
+            return path + [imported], seen
+        if imported not in seen and imported != module:
+            seen.add(imported)
+            found, seen = _circle_from(imported, graph, path + [imported], seen)
+            if found:
+                return found, seen
+    return None, seen
+
+
 def test_the_layer_check_sees_imports_inside_functions(tmp_path):
     source = tmp_path / "module.py"
     source.write_text("def f():\n    from runout.cli import app\n    import runout.plots.frames\n")
@@ -98,26 +124,69 @@ def test_the_data_layer_loads_without_torch():
 
 def test_the_command_line_starts_without_torch_or_matplotlib():
     """`runout --help` and every command's options load only the settings they derive from
-    (runout.train_settings, runout.evaluate.cases, ...); the engines load when a command runs."""
+    (runout.train_settings, runout.evaluate.study_settings, ...); the engines load when a command runs."""
     code = ("import runout.cli, sys; heavy = [m for m in ('torch', 'matplotlib', 'scipy', 'warp') if m in sys.modules]; "
             "assert not heavy, heavy")
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
 ENGINE_PACKAGES = ("runout.gns", "runout.neural_mpm")
+# What only the GNS reads (runout.gns.schema): the shared contract names none of it.
+GNS_ONLY = {"NetworkConfig", "NETWORK_LIMITS", "MAX_STEPS", "FeatureSchema", "wall_clip", "type_embedding", "overburden",
+            "node_width", "edge_width", "latent", "hidden", "message_passing_steps"}
 
 
-def test_commands_reach_the_learned_engines_only_through_the_contract():
-    """A command module takes any learned engine through runout.learned (load_engine), never
-    one engine's package; an engine's package never imports another engine's."""
+def test_the_contract_holds_only_what_every_learned_engine_shares():
+    """runout.contract: history, stride, particle types, material features, the codec and the
+    radius per spacing; the GNS's node inputs and layer sizes are runout.gns.schema's."""
+    tree = ast.parse((PACKAGE / "contract.py").read_text())
+    names = {getattr(node, attr) for node in ast.walk(tree) for attr in ("id", "attr", "name", "arg")
+             if isinstance(getattr(node, attr, None), str)}
+    names |= {node.value for node in ast.walk(tree) if isinstance(node, ast.Constant) and isinstance(node.value, str)}
+    assert not names & GNS_ONLY, sorted(names & GNS_ONLY)
+
+
+# Modules that serve every learned engine: they reach one only through runout.learned.load.
+ANY_ENGINE = ("runout.cli", "runout.compare", "runout.rollout_run", "runout.demo", "runout.inverse",
+              "runout.evaluate.heldout", "runout.evaluate.heldout_run", "runout.evaluate.columns", "runout.evaluate.slope",
+              "runout.evaluate.diagnostics", "runout.evaluate.inverse_study", "runout.contract", "runout.learned")
+ENGINE_LOADER = "runout.learned.load"  # the one module that opens each engine's package, by the file's engine
+
+
+def _package(module: str, packages) -> str | None:
+    return next((p for p in packages if module == p or module.startswith(p + ".")), None)
+
+
+def engine_leaks() -> list[str]:
+    """Imports of an engine's package by a module that serves every engine (a command module
+    above all), and by another engine's package."""
     leaks = []
     for path in sorted(PACKAGE.rglob("*.py")):
         module = module_name(path)
-        own = next((p for p in ENGINE_PACKAGES if module == p or module.startswith(p + ".")), None)
-        for imported in imported_modules(path):
-            engine = next((p for p in ENGINE_PACKAGES if imported == p or imported.startswith(p + ".")), None)
-            if engine is None:
+        own = _package(module, ENGINE_PACKAGES)
+        for imported in imported_modules(path, type_only=True):
+            engine = _package(imported, ENGINE_PACKAGES)
+            if engine is None or module == ENGINE_LOADER:
                 continue
-            if module.startswith("runout.cli") or (own is not None and engine != own):
+            if _package(module, ANY_ENGINE) or (own is not None and engine != own):
                 leaks.append(f"{module} imports {imported}")
+    return leaks
+
+
+def test_commands_reach_the_learned_engines_only_through_the_contract():
+    """A command module (and every module that serves any learned engine: compare, rollout,
+    the demo, the inverse, the engine-blind studies, the contract) takes a learned engine through
+    runout.learned (load_engine), never one engine's package; gns/ never imports the neural MPM,
+    nor the neural MPM gns/."""
+    leaks = engine_leaks()
     assert not leaks, "\n".join(leaks)
+
+
+def test_the_engine_check_sees_a_command_that_imports_the_gns(tmp_path, monkeypatch):
+    for folder, source in (("cli", "from runout.gns.rollout import rollout\n"),
+                           ("gns", "def f():\n    import runout.neural_mpm.engine\n")):
+        (tmp_path / "runout" / folder).mkdir(parents=True)
+        (tmp_path / "runout" / folder / "leak.py").write_text(source)
+    monkeypatch.setattr(sys.modules[__name__], "PACKAGE", tmp_path / "runout")
+    assert sorted(engine_leaks()) == ["runout.cli.leak imports runout.gns.rollout",
+                                      "runout.gns.leak imports runout.neural_mpm.engine"]

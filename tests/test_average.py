@@ -4,9 +4,10 @@ from pathlib import Path
 
 import torch
 
-from runout.contract import FeatureSchema
 from runout.gns.checkpoint import load_simulator, save_checkpoint
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema
+from runout.gns.schema import NetworkConfig
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 from test_cli_exits import one_sentence, run
 
 TINY = NetworkConfig(latent=8, hidden=8, hidden_layers=1, message_passing_steps=1)
@@ -15,7 +16,7 @@ STATS = Normalisation((0.0, -0.01), (0.02, 0.03), (0.0, -1e-3), (2e-3, 3e-3), 2.
 
 def _checkpoint(path: Path, seed: int, radius: float = 4.6, step: int = 100) -> Path:
     torch.manual_seed(seed)
-    simulator = Simulator(FeatureSchema(material_features=("tan_phi",)), STATS, radius, TINY)
+    simulator = GraphNetworkSimulator(FeatureSchema(material_features=("tan_phi",)), STATS, radius, TINY)
     return save_checkpoint(path, simulator, step=step)
 
 

@@ -77,7 +77,7 @@ def test_an_unknown_option_is_exit_2(capsys):
 @pytest.mark.parametrize("option, value, words", [
     ("--latent", "0", "--latent = 0 is outside the allowed range [1, 1024]"),
     ("--noise", "-1", "--noise = -1 is outside the allowed range [0, 10] velocity std"),
-    ("--static-tail", "-3", "--static-tail = -3 is outside the allowed range [0, 1e+06] frames"),
+    ("--mirror", "2", "--mirror = 2 is outside the allowed range [0, 1]"),
     ("--message-passing-steps", "500", "--message-passing-steps = 500 is outside the allowed range [1, 50]"),
     ("--lr", "0", "--lr = 0 is outside the allowed range (0, 1]"),
     ("--ema", "1", "--ema = 1 is outside the allowed range [0, 0.99999]"),

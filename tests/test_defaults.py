@@ -1,7 +1,7 @@
 """The shared defaults are the values the scene parser, the MPM and the GNS use."""
 
 from runout import defaults
-from runout.contract import FeatureSchema, HISTORY, decode_material, encode_material
+from runout.contract import HISTORY, WindowSchema, decode_material, encode_material
 from runout.mpm import batch, geostatic
 from runout.scene import scene_from_dict
 
@@ -25,4 +25,4 @@ def test_a_scene_without_optional_values_takes_the_defaults():
 def test_the_material_codec_round_trips_degrees_and_kpa():
     phi, c = decode_material(encode_material(33.0, 25.0))
     assert abs(phi - 33.0) < 1e-9 and abs(c - 25.0) < 1e-9
-    assert FeatureSchema().history == HISTORY == 6
+    assert WindowSchema().history == HISTORY == 6

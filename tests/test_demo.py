@@ -14,9 +14,8 @@ from typer.testing import CliRunner
 from runout.cli import app
 from runout.errors import InputError
 from runout.gns.checkpoint import read_checkpoint
-from runout.gns.simulator import NetworkConfig
+from runout.gns.schema import NetworkConfig
 from runout.train import TrainConfig, continued_onset, train
-from runout.train_settings import RECIPE
 from test_gns_synthetic import write_dataset
 
 torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
@@ -150,7 +149,7 @@ def test_a_base_session_then_a_finetune_session_continue_each_other(tmp_path):
     assert summary["training"]["first_steps_per_s"] > 0 and "position_mse_mean_m2" in summary["evaluation"]
     base = read_checkpoint(out / "base.pt")
     assert "optimizer" not in base and base["step"] == summary["training"]["steps"]
-    assert base["train"]["onset_schedule"] == RECIPE["onset_schedule"] and base["train"]["noise"] == RECIPE["noise"]
+    assert base["train"]["onset_schedule"] == TrainConfig.onset_schedule and base["train"]["noise"] == TrainConfig.noise
 
     (tmp_path / "models").mkdir()
     shutil.copyfile(out / "base.pt", tmp_path / "models" / "base.pt")

@@ -16,8 +16,8 @@ from runout.evaluate.diagnostics import sigma_distance
 from runout.evaluate.inverse_study import spec_text
 from runout.evaluate.scenes import EXAMPLES, example_scene
 from runout.gns.checkpoint import read_checkpoint, save_checkpoint
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 from runout.inverse import load_inverse_spec
 from runout.metrics import (
     absolute_percentage_error, coefficient_of_variation, displacement_error, normalised_runout, r_squared,
@@ -36,7 +36,8 @@ COLUMN_GRID = ["--aspects", "1,2", "--phis", "22.5", "--cohesions", "25", "--sca
 
 def tiny_model(path, materials=("tan_phi", "c_over_100kPa")):
     torch.manual_seed(0)
-    return save_checkpoint(path, Simulator(FeatureSchema(material_features=materials), STATS, 4.6, NetworkConfig(16, 16, 2, 2)))
+    simulator = GraphNetworkSimulator(FeatureSchema(material_features=materials), STATS, 4.6, NetworkConfig(16, 16, 2, 2))
+    return save_checkpoint(path, simulator)
 
 
 def invoke(args):
@@ -128,7 +129,7 @@ def test_a_second_columns_run_reads_the_mpm_from_the_cache(studies, tmp_path, mo
 
 
 def test_a_study_runs_the_mpm_and_the_gns_at_the_models_spacing(tmp_path):
-    from runout.evaluate import EngineRun, run_columns
+    from runout.evaluate import StudyContext, run_columns
     from runout.evaluate.columns import ColumnGrid
     from runout.gns.checkpoint import load_simulator
     from runout.learned.training_range import point_spacing
@@ -139,7 +140,7 @@ def test_a_study_runs_the_mpm_and_the_gns_at_the_models_spacing(tmp_path):
     simulator.data_ranges = {"point_spacing_m": 5.0}  # trained at 10 m cells; the example columns have 4 m
     save_checkpoint(tmp_path / "coarse.pt", simulator)
     lines = []
-    run = EngineRun(MpmCache(tmp_path / "cache"), progress=False, log=lines.append)
+    run = StudyContext(MpmCache(tmp_path / "cache"), progress=False, log=lines.append)
     summary = run_columns(tmp_path / "coarse.pt", tmp_path / "out", ColumnGrid((1.0,), (22.5,), (25.0,), 8, 0.2), run)
     assert lines == ["filling column_a1.toml at the model's 5 m spacing (10 m cells) instead of the scene's 4 m cells"]
     mpm_dir = tmp_path / "cache" / summary["percentile_cases"]["50"]["mpm_key"]

@@ -14,7 +14,7 @@ from runout.families import (
 )
 from runout.scene import (
     edges_cross, fill_points, points_in_polygon, polygon_area, polygon_self_intersects, polygons_overlap,
-    validate_scene,
+    check_scene,
 )
 
 N_SAMPLES = 200
@@ -148,9 +148,9 @@ def test_the_columns_stage_spans_the_column_study_but_leaves_its_cases_out():
 
 
 @pytest.mark.parametrize("stage,family", CASES)
-def test_samples_pass_validate_scene(stage, family):
+def test_samples_pass_check_scene(stage, family):
     for s in _samples(stage, family, n=3, seed=3):
-        validate_scene(s.scene, f"{stage}/{family}")
+        check_scene(s.scene, f"{stage}/{family}")
 
 
 def test_family_mix_follows_the_paper_in_every_prefix():

@@ -13,12 +13,12 @@ from runout.errors import InputError
 from runout.gns.checkpoint import load_simulator, read_checkpoint, save_checkpoint
 from runout.gns.engine import GnsEngine
 from runout.gns.rollout import rollout_trajectory, start_window
-from runout.learned.scenes import scene_at_rest
-from runout.gns.samples import Simulations
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
+from runout.gns.windows import TrainingWindows
 from runout.inverse import load_inverse_spec, load_observation
 from runout.inverse.forward import inverse_problem
+from runout.learned.scenes import scene_at_rest
 from runout.metrics import at_common_times, compare, position_mse
 from runout.scene import scene_from_dict
 from runout.simfiles import read_simulations, statistics, write_simulations
@@ -46,7 +46,7 @@ def truth(frames: int = 20):
 
 def test_windows_at_stride_two_start_at_every_frame(tmp_path):
     data = write_dataset(tmp_path / "data", frames=20, n_train=2)
-    sims = Simulations(data / "train.npz", torch.device("cpu"), rest_windows=False).with_stride(2)
+    sims = TrainingWindows(data / "train.npz", torch.device("cpu"), rest_windows=False).with_stride(2)
     assert sims.n_windows == 2 * (20 - 6 * 2)  # starts 0..7 of each simulation
     positions = torch.from_numpy(read_simulations(data / "train.npz")[1][0])
     window, future, _, _, _ = sims._window(8 + 3)  # the second simulation, start frame 3
@@ -56,7 +56,7 @@ def test_windows_at_stride_two_start_at_every_frame(tmp_path):
 
 def test_windows_at_rest_start_before_frame_zero_at_stride_two(tmp_path):
     data = write_dataset(tmp_path / "data", frames=20, n_train=2)
-    sims = Simulations(data / "train.npz", torch.device("cpu")).with_stride(2)
+    sims = TrainingWindows(data / "train.npz", torch.device("cpu")).with_stride(2)
     assert sims.n_windows == 2 * (20 - 6 * 2 + 5 * 2)  # starts -10..7 of each simulation
     positions = torch.from_numpy(read_simulations(data / "train.npz")[1][0])
     window, future, _, _, _ = sims._window(18)  # the second simulation's first window: the scene at rest
@@ -78,7 +78,7 @@ def test_a_thrown_block_stands_before_its_first_frame_where_its_velocity_puts_it
     thrown = positions.copy()
     thrown[:, soil, 0] += 10.0 * FRAME_DT * np.arange(20)[:, None]  # 10 m/s sideways from frame 0
     write_simulations(tmp_path / "train.npz", [at_rest, (thrown, ptype, material)])
-    sims = Simulations(tmp_path / "train.npz", torch.device("cpu")).with_stride(2)
+    sims = TrainingWindows(tmp_path / "train.npz", torch.device("cpu")).with_stride(2)
     assert sims.starts_at_rest == [True, False]
     assert sims.n_windows == 2 * (20 - 6 * 2 + 5 * 2)  # starts -10..7 of each
     velocity = first_frame_velocity(thrown[0], thrown[1], ptype, FRAME_DT)  # m/s
@@ -125,7 +125,7 @@ def test_a_scene_with_a_region_velocity_starts_its_rollout_at_that_velocity():
 
 def test_stride_two_statistics_are_those_of_two_frame_differences(tmp_path):
     data = write_dataset(tmp_path / "data", frames=20, n_train=3)
-    sims = Simulations(data / "train.npz", torch.device("cpu"))
+    sims = TrainingWindows(data / "train.npz", torch.device("cpu"))
     positions = [p.astype(np.float64) for p, _, _ in read_simulations(data / "train.npz")]
     v = np.concatenate([(p[2:] - p[:-2]).reshape(-1, 2) for p in positions])
     a = np.concatenate([(p[4:] - 2 * p[2:-2] + p[:-4]).reshape(-1, 2) for p in positions])
@@ -146,7 +146,7 @@ def test_a_stride_two_run_learns_and_records_its_stride_and_statistics(stride_tw
     assert np.median(curve[-20:]) < 0.5 * np.median(curve[:20])
     ckpt = read_checkpoint(run_dir / "checkpoint.pt")
     assert ckpt["schema"]["frame_stride"] == 2
-    measured = Simulations(data / "train.npz", torch.device("cpu")).with_stride(2).moments()
+    measured = TrainingWindows(data / "train.npz", torch.device("cpu")).with_stride(2).moments()
     assert ckpt["stats"]["vel_std"] == pytest.approx(measured["vel_std"])
     assert ckpt["stats"]["acc_std"] == pytest.approx(measured["acc_std"])
     noisy = train(config(data, tmp_path / "noisy", steps=1, frame_stride=2, noise=0.3))
@@ -220,7 +220,7 @@ def test_fine_tuning_keeps_the_base_models_stride_unless_another_is_asked(tmp_pa
     other = train(config(data, tmp_path / "other", steps=1, lr_init=1e-12,
                          init=tmp_path / "base" / "checkpoint.pt", frame_stride=3))
     assert other.frame_stride == 3
-    moments = Simulations(data / "train.npz", torch.device("cpu")).with_stride(3).moments()
+    moments = TrainingWindows(data / "train.npz", torch.device("cpu")).with_stride(3).moments()
     np.testing.assert_allclose(other.stats.vel_std, moments["vel_std"], rtol=1e-9)
     np.testing.assert_allclose(other.stats.acc_std, moments["acc_std"], rtol=1e-9)
     assert other.vel_scale[0] > 1.3 * base.vel_scale[0]  # a 3-frame step moves points about 1.5 times as far as 2 frames
@@ -262,7 +262,7 @@ def test_an_inverse_at_stride_two_observes_only_frames_the_model_predicts(tmp_pa
 
     torch.manual_seed(0)
     stats = Normalisation((0.0, 0.0), (2e-2, 2e-2), (0.0, 0.0), (2e-3, 2e-3), 0.0)
-    simulator = Simulator(FeatureSchema(frame_stride=2), stats, 5.0, NetworkConfig(16, 16, 1, 2)).eval()
+    simulator = GraphNetworkSimulator(FeatureSchema(frame_stride=2), stats, 5.0, NetworkConfig(16, 16, 1, 2)).eval()
     write_target(tmp_path, simulator, steps=15)  # frames 0-15 (a stand-in for an MPM run)
     parameters = "[parameters.left]\nphi = { initial = 25.0, lower = 10.0, upper = 40.0 }"
     odd = load_inverse_spec(write_spec(tmp_path, parameters, "frames = [13]", name="odd.toml"))

@@ -6,10 +6,11 @@ import numpy as np
 import pytest
 import torch
 
-from runout.contract import FeatureSchema
 from runout.errors import InputError
 from runout.gns.rollout import rollout_trajectories, rollout_trajectory
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema
+from runout.gns.schema import NetworkConfig
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 from runout.trajectory import trajectory_from_features
 from test_gns_synthetic import FRAME_DT, falling_block
 
@@ -18,9 +19,9 @@ torch.set_num_threads(1)
 STATS = Normalisation((0.0, -0.01), (0.02, 0.03), (0.0, -1e-3), (2e-3, 3e-3), 2.5e-3)
 
 
-def model() -> Simulator:
+def model() -> GraphNetworkSimulator:
     torch.manual_seed(3)
-    return Simulator(FeatureSchema(material_features=("tan_phi", "c_over_100kPa")), STATS, 4.6,
+    return GraphNetworkSimulator(FeatureSchema(material_features=("tan_phi", "c_over_100kPa")), STATS, 4.6,
                      NetworkConfig(16, 16, 2, 2)).eval()
 
 

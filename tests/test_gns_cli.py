@@ -66,12 +66,13 @@ def test_a_missing_model_is_an_input_error(tmp_path):
 def spaced_model(path, radius=12.0, spacing=4.0):
     """An untrained checkpoint whose data_ranges record `spacing` (m) and whose radius is another (m)."""
     from runout.gns.checkpoint import save_checkpoint
-    from runout.contract import FeatureSchema
-    from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+    from runout.gns.schema import FeatureSchema, NetworkConfig
+    from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 
     torch.manual_seed(0)
     stats = Normalisation((0.0, 0.0), (0.02, 0.02), (0.0, 0.0), (2e-3, 2e-3), 2.5e-3)
-    simulator = Simulator(FeatureSchema(material_features=("tan_phi", "c_over_100kPa")), stats, radius, NetworkConfig(8, 8, 1, 1))
+    schema = FeatureSchema(material_features=("tan_phi", "c_over_100kPa"))
+    simulator = GraphNetworkSimulator(schema, stats, radius, NetworkConfig(8, 8, 1, 1))
     simulator.data_ranges = None if spacing is None else {"point_spacing_m": spacing, "source": "a test"}
     return save_checkpoint(path, simulator)
 

@@ -3,11 +3,15 @@ import torch
 from torch import nn
 
 from runout.errors import InputError
-from runout.gns.checkpoint import check_schema, load_simulator, save_checkpoint, widen_material_features
+from runout.gns.checkpoint import load_simulator, save_checkpoint
+from runout.gns.checkpoint_checks import check_schema
+from runout.gns.features import Constraints
+from runout.gns.fine_tuning import renormalise, widen_material_features
 from runout.gns.network import EdgeUpdate
 from runout.gns.rollout import CHECK_EVERY, MIN_FRAMES_BEFORE_STOP, RolloutDiverged, rollout
-from runout.contract import FeatureSchema
-from runout.gns.simulator import Case, NetworkConfig, Normalisation, Simulator, corrected_target, random_walk_noise
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
+from runout.gns.training import corrected_target, masked_loss, random_walk_noise
 
 torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchronisation cost
 
@@ -16,9 +20,9 @@ STATS = Normalisation((0.0, -0.01), (0.02, 0.03), (0.0, -1e-3), (2e-3, 3e-3), 2.
 BOUNDS = torch.tensor([[0.0, 40.0], [0.0, 20.0]])
 
 
-def tiny_simulator(materials=("tan_phi",), seed=0) -> Simulator:
+def tiny_simulator(materials=("tan_phi",), seed=0) -> GraphNetworkSimulator:
     torch.manual_seed(seed)
-    return Simulator(FeatureSchema(material_features=materials), STATS, 4.6, TINY).eval()
+    return GraphNetworkSimulator(FeatureSchema(material_features=materials), STATS, 4.6, TINY).eval()
 
 
 def heap(n_steps_history=6):
@@ -180,30 +184,20 @@ def test_blocked_inference_equals_the_differentiable_forward(monkeypatch):
 
 
 def test_the_case_holds_kinematic_points_and_keeps_the_rest_inside_the_walls():
-    from runout.gns.simulator import Case
 
-    case = Case.of(torch.tensor([6, 3, 6]), [[0.0, 10.0], [0.0, 5.0]])
+    constraints = Constraints.of(torch.tensor([6, 3, 6]), [[0.0, 10.0], [0.0, 5.0]])
     current = torch.tensor([[1.0, 1.0], [2.0, 0.5], [9.0, 4.0]])
     predicted = torch.tensor([[-1.0, 2.0], [3.0, 3.0], [12.0, 6.0]])
-    out = case.constrain(predicted, current)
+    out = constraints.constrain(predicted, current)
     assert torch.equal(out, torch.tensor([[0.0, 2.0], [2.0, 0.5], [10.0, 5.0]]))
 
 
-def test_the_moving_weight_counts_moving_points_that_many_times():
-    from runout.gns.samples import TrainingBatch
-    from runout.gns.simulator import Case
-    from runout.train import MOVING_SPEED, _moving_weights
-
-    dt = 0.0375  # s per step
-    window = torch.zeros((3, 6, 2))
-    step = torch.tensor([[0.0, 0.0], [2 * MOVING_SPEED * dt, 0.0], [0.0, 0.5 * MOVING_SPEED * dt]])  # still, moving, slow
-    batch = TrainingBatch(window, step[:, None], torch.tensor([6, 6, 3]), torch.zeros((3, 0)), torch.zeros(3, dtype=torch.long))
-    weights = _moving_weights(batch, 4.0, dt)
-    assert weights.tolist() == [1.0, 4.0, 1.0] and _moving_weights(batch, 1.0, dt) is None
-    case = Case.of(batch.particle_type, [[0.0, 10.0], [0.0, 10.0]])  # the third point is kinematic: no loss
+def test_the_loss_is_a_weighted_mean_over_the_points_that_move():
+    constraints = Constraints.of(torch.tensor([6, 6, 3]), [[0.0, 10.0], [0.0, 10.0]])  # the third point is kinematic: no loss
+    weights = torch.tensor([1.0, 4.0, 1.0])
     predicted, target = torch.zeros((3, 2)), torch.tensor([[1.0, 0.0], [2.0, 0.0], [5.0, 0.0]])
-    assert Simulator.loss(predicted, target, case, weights).item() == pytest.approx((1.0 + 4.0 * 4.0) / 5.0)
-    assert Simulator.loss(predicted, target, case).item() == pytest.approx((1.0 + 4.0) / 2.0)
+    assert masked_loss(predicted, target, constraints, weights).item() == pytest.approx((1.0 + 4.0 * 4.0) / 5.0)
+    assert masked_loss(predicted, target, constraints).item() == pytest.approx((1.0 + 4.0) / 2.0)
 
 
 def test_held_positions_of_the_scene_at_rest_get_no_noise():
@@ -220,10 +214,10 @@ def test_held_positions_of_the_scene_at_rest_get_no_noise():
 
 
 def test_a_window_knows_how_many_of_its_positions_are_the_scene_at_rest(tmp_path):
-    from runout.gns.samples import Simulations
+    from runout.gns.windows import TrainingWindows
     from test_gns_synthetic import write_dataset
 
-    sims = Simulations(write_dataset(tmp_path / "data", frames=20, n_train=1) / "train.npz", torch.device("cpu"))
+    sims = TrainingWindows(write_dataset(tmp_path / "data", frames=20, n_train=1) / "train.npz", torch.device("cpu"))
     assert [sims._window(k)[4] for k in range(8)] == [6, 5, 4, 3, 2, 1, 0, 0]
 
 
@@ -239,7 +233,7 @@ def test_renormalising_keeps_the_predictions_and_takes_the_new_scales():
     with torch.no_grad():
         before = sim.next_positions(window, ptype, material, BOUNDS)
     narrow = Normalisation((0.004, -0.02), (0.05, 0.01), (1e-4, -2e-3), (1e-3, 5e-4), 1e-4)
-    sim.renormalise(narrow)
+    renormalise(sim, narrow)
     assert sim.stats == narrow
     torch.testing.assert_close(sim.acc_scale, torch.tensor([1e-3, 5e-4]).square().add(1e-8).sqrt())
     with torch.no_grad():
@@ -264,7 +258,7 @@ def test_overburden_is_the_depth_below_the_surface_at_rest():
     """A 2:1 slope at rest (lattice of 4 m, the model's columns of 8 m): each soil point's
     overburden equals the depth from the ground surface above it to the point, and kinematic
     points (ground) above do not count; two graphs are kept apart."""
-    from runout.gns.simulator import overburden_depth
+    from runout.gns.features import overburden_depth
 
     block = lattice(80.0, 64.0)
     surface = 64.0 - 0.5 * torch.clamp(block[:, 0] - 16.0, min=0.0)  # flat crest, then a 1:2 face (m)
@@ -296,7 +290,8 @@ def test_a_model_with_the_overburden_input_sees_depth_and_round_trips(tmp_path):
     (older checkpoints) have none."""
     frames, ptype = heap()
     torch.manual_seed(0)
-    sim = Simulator(FeatureSchema(material_features=("tan_phi", "c_over_100kPa"), overburden=True), STATS, 4.6, TINY).eval()
+    schema = FeatureSchema(material_features=("tan_phi", "c_over_100kPa"), overburden=True)
+    sim = GraphNetworkSimulator(schema, STATS, 4.6, TINY).eval()
     assert sim.schema.node_width == tiny_simulator(("tan_phi", "c_over_100kPa")).schema.node_width + 1
     material = torch.rand((40, 2))
     window = frames.transpose(0, 1)
@@ -331,19 +326,19 @@ def test_soil_does_not_pass_through_the_fixed_ground():
     soil = [(2.0, 6.0), (14.0, 6.0), (18.0, 3.5), (30.0, 10.0), (34.0, 20.0)]
     points = torch.tensor(ground + overhang + soil)
     ptype = torch.tensor([3] * (len(ground) + 1) + [6] * len(soil))
-    case = Case.of(ptype, BOUNDS.new_tensor([[0.0, 40.0], [0.0, 40.0]]), points, None, 4.0)
+    constraints = Constraints.of(ptype, BOUNDS.new_tensor([[0.0, 40.0], [0.0, 40.0]]), points, None, 4.0)
     predicted = points.clone()
     predicted[-5:] = torch.tensor([[2.5, -5.0], [15.0, 0.5], [21.0, 3.0], [31.0, 8.0], [34.0, 19.0]])
-    moved = case.constrain(predicted, points)
+    moved = constraints.constrain(predicted, points)
     assert torch.equal(moved[: len(ground) + 1], points[: len(ground) + 1])  # the fixed points stay
     assert moved[-5].tolist() == [2.5, 1.0]  # sank: raised to the floor, 2 - 1 m
     assert moved[-4].tolist() == [15.0, 1.0]
     assert moved[-3].tolist() == [18.0, 3.0]  # into the step's side: x kept, y as predicted (above its own floor)
     assert moved[-2].tolist() == [31.0, 8.0]  # above the step's floor (29 m): free
     assert moved[-1].tolist() == [34.0, 19.0]  # under the overhang (floor 29 m there): left alone
-    walls_only = Case.of(ptype, case.bounds).constrain(predicted, points)[-5:]  # no ground given: the domain's bounds only
+    walls_only = Constraints.of(ptype, constraints.bounds).constrain(predicted, points)[-5:]  # no ground given: the domain's bounds only
     assert torch.equal(walls_only, predicted[-5:].clamp(min=0.0))
-    two = Case.of(torch.cat([ptype, ptype]), case.bounds, torch.cat([points, points + torch.tensor([0.0, 10.0])]),
+    two = Constraints.of(torch.cat([ptype, ptype]), constraints.bounds, torch.cat([points, points + torch.tensor([0.0, 10.0])]),
                   torch.cat([torch.zeros(len(points)), torch.ones(len(points))]).long(), 4.0)
     lifted = two.constrain(torch.cat([predicted, predicted]), torch.cat([points, points + torch.tensor([0.0, 10.0])]))
     assert lifted[len(points) + len(ground) + 1].tolist() == [2.5, 11.0]  # each scene its own ground
@@ -353,7 +348,7 @@ def test_the_mpm_soil_stays_above_the_gns_floor():
     """The floor is the MPM's own behaviour: a column collapsing onto stepped fixed ground
     (8 m cells, 4 m points, 4.5 s) never puts a soil point below its column's floor, so the
     constraint takes away nothing the MPM would do."""
-    from runout.gns.simulator import Ground
+    from runout.gns.features import Ground
     from runout.mpm import simulate
     from runout.scene import scene_from_dict
 

@@ -11,7 +11,7 @@ import torch.multiprocessing as mp
 from runout.errors import InputError
 from runout.gns.checkpoint import load_last_step, load_simulator, read_checkpoint
 from runout.gns.rollout import rollout_trajectory
-from runout.gns.simulator import NetworkConfig
+from runout.gns.schema import NetworkConfig
 from runout.metrics import compare, final_displacement
 from runout.train import TrainConfig, learning_rate, train
 from runout.trajectory import trajectory_from_features
@@ -22,8 +22,15 @@ torch.set_num_threads(1)  # tiny graphs: extra threads only add OpenMP synchroni
 TINY = NetworkConfig(latent=16, hidden=16, hidden_layers=2, message_passing_steps=2)
 
 
+# The plain training of these tests (not the recipe, TrainConfig's defaults): one-step, noisy
+# windows at rest, no onset draws, no weight average, no mirror, no overburden input, a fast
+# learning rate; each test adds what it tests.
+PLAIN = dict(lr_init=1e-3, lr_decay_steps=5e6, noise=0.1, exact_rest=False, onset_schedule=(), pushforward=0, ema=0.0,
+             overburden=False, mirror=0.0, checkpoint_layers=False)
+
+
 def config(data, out, **kw) -> TrainConfig:
-    settings = dict(network=TINY, lr_init=1e-3, log_every=1, save_every=10, valid_every=0, checkpoint_layers=False)
+    settings = dict(network=TINY, log_every=1, save_every=10, valid_every=0, **PLAIN)
     return TrainConfig(data=data, out=out, **{**settings, **kw})
 
 
@@ -287,13 +294,13 @@ def test_a_tiny_model_learns_to_start_from_rest_and_beats_standing_still(tmp_pat
 
 
 def test_the_overburden_input_is_chosen_by_new_runs_only(tmp_path):
-    """--overburden makes the new model's node encoder one column wider and the checkpoint
-    says so; a run resumed or fine-tuned from it keeps it, and asking to drop (or add) it
-    there is a one-sentence InputError."""
+    """--overburden (a new run's default) makes the new model's node encoder one column wider
+    and the checkpoint says so; a run resumed or fine-tuned from it keeps it, and asking to drop
+    (or add) it there is a one-sentence InputError."""
     data = write_dataset(tmp_path / "data")
-    deep = train(config(data, tmp_path / "deep", steps=2, overburden=True))
+    deep = train(config(data, tmp_path / "deep", steps=2, overburden=None))
     assert deep.schema.overburden and read_checkpoint(tmp_path / "deep" / "checkpoint.pt")["schema"]["overburden"]
-    assert train(config(data, tmp_path / "deep", steps=3, resume=True)).schema.overburden
+    assert train(config(data, tmp_path / "deep", steps=3, resume=True, overburden=None)).schema.overburden
     with pytest.raises(InputError, match=r"deep/checkpoint.pt has the overburden input, so it trains only with it"):
         train(config(data, tmp_path / "deep", steps=4, resume=True, overburden=False))
     plain = train(config(data, tmp_path / "plain", steps=2))

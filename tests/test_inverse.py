@@ -20,8 +20,8 @@ from runout.errors import InputError
 from runout.gns.checkpoint import save_checkpoint
 from runout.gns.engine import GnsEngine
 from runout.gns.rollout import rollout
-from runout.contract import FeatureSchema
-from runout.gns.simulator import NetworkConfig, Normalisation, Simulator
+from runout.gns.schema import FeatureSchema, NetworkConfig
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
 from runout.inverse import Evaluation, invert, load_inverse_spec, load_observation, minimise, starting_points
 from runout.inverse.forward import inverse_problem
 from runout.inverse.history import HISTORY_JSON, RunInfo
@@ -55,17 +55,17 @@ TOY_SCENE = {
 pytestmark = pytest.mark.usefixtures("one_thread")
 
 
-def tiny_gns(seed: int = 0) -> Simulator:
+def tiny_gns(seed: int = 0) -> GraphNetworkSimulator:
     torch.manual_seed(seed)
     stats = Normalisation((0.0, 0.0), (2e-2, 2e-2), (0.0, 0.0), (2e-3, 2e-3), 0.0)  # m/frame, m/frame^2
-    simulator = Simulator(FeatureSchema(), stats, 5.0, NetworkConfig(16, 16, 1, 2)).eval()
+    simulator = GraphNetworkSimulator(FeatureSchema(), stats, 5.0, NetworkConfig(16, 16, 1, 2)).eval()
     simulator.data_ranges = {"point_spacing_m": 2.0}  # TOY_SCENE's 4 m cells: invert fills the scene at this spacing
     with torch.no_grad():
         simulator.network.node_encoder[0].weight[:, -2:] *= 20  # material columns: strong response
     return simulator
 
 
-def write_target(folder: Path, simulator: Simulator, steps: int = STEPS) -> Path:
+def write_target(folder: Path, simulator: GraphNetworkSimulator, steps: int = STEPS) -> Path:
     """Scene file toy.toml and a target trajectory made by `simulator` at its values (TRUE)."""
     true_scene = scene_from_dict(TOY_SCENE, "toy")
     save_scene(true_scene, folder / "toy.toml")

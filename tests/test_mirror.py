@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from runout.gns.samples import TrainingBatch, mirrored
+from runout.gns.windows import TrainingBatch, mirrored
 from runout.mpm import simulate
 from runout.simfiles import read_simulations, write_simulations
 from runout.train import TrainConfig, train

@@ -10,9 +10,11 @@ import torch.multiprocessing as mp
 
 from runout.errors import InputError
 from runout.gns.checkpoint import read_checkpoint
-from runout.gns.samples import Simulations
-from runout.contract import FeatureSchema
-from runout.gns.simulator import Case, Normalisation, Simulator
+from runout.gns.features import Constraints
+from runout.gns.schema import FeatureSchema
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
+from runout.gns.training import masked_loss, pushforward, training_inputs
+from runout.gns.windows import TrainingWindows
 from runout.simfiles import read_metadata, read_simulations
 from runout.train import Context, _generators, _train_step, train, unrolled_steps
 from runout.train_settings import onset_at, parse_onset_schedule
@@ -61,7 +63,7 @@ def test_the_unrolled_steps_are_uniform_and_depend_on_seed_and_step_only():
 @pytest.mark.parametrize("stride", [1, 2])
 def test_windows_for_two_pushforward_steps_leave_room_for_the_true_frames(tmp_path, stride):
     data = write_dataset(tmp_path / "data", frames=20, n_train=2)
-    sims = Simulations(data / "train.npz", torch.device("cpu"), rest_windows=False).with_stride(stride)
+    sims = TrainingWindows(data / "train.npz", torch.device("cpu"), rest_windows=False).with_stride(stride)
     starts = 20 - 8 * stride  # a window and its target 2 steps on span (6 + 2) x stride + 1 frames
     assert sims.n_windows_for(2) == 2 * starts and sims.n_windows == 2 * (20 - 6 * stride)
     positions = torch.from_numpy(read_simulations(data / "train.npz")[1][0])
@@ -79,27 +81,27 @@ def test_windows_for_two_pushforward_steps_leave_room_for_the_true_frames(tmp_pa
         assert any(np.array_equal(frames, p[s : s + 8 * stride + 1 : stride]) for p in every for s in range(starts))
 
 
-def tiny_simulator(noise: float = 0.0) -> Simulator:
+def tiny_simulator(noise: float = 0.0) -> GraphNetworkSimulator:
     torch.manual_seed(0)
     stats = Normalisation((0.0, -0.05), (0.1, 0.1), (0.0, 0.0), (0.02, 0.02), noise)
-    return Simulator(FeatureSchema(material_features=("tan_phi",)), stats, 4.6, TINY)
+    return GraphNetworkSimulator(FeatureSchema(material_features=("tan_phi",)), stats, 4.6, TINY)
 
 
 def test_an_unrolled_window_is_the_models_rollout_and_its_target_the_acceleration_to_the_true_frame(tmp_path):
     data = write_dataset(tmp_path / "data")
-    sims = Simulations(data / "train.npz", torch.device("cpu"))
+    sims = TrainingWindows(data / "train.npz", torch.device("cpu"))
     window, future, ptype, material, _ = sims._window(5, 2)
-    case = Case.of(ptype, torch.tensor(read_metadata(data)["bounds"]))
+    constraints = Constraints.of(ptype, torch.tensor(read_metadata(data)["bounds"]))
     simulator = tiny_simulator()
-    produced = simulator.pushforward(window, 2, ptype, material, case)
+    produced = pushforward(simulator, window, 2, ptype, material, constraints)
     assert not produced.requires_grad
     with torch.no_grad():  # by hand: two rollout steps, each appended and the oldest dropped
-        first = simulator.step(window, ptype, material, case)
-        second = simulator.step(torch.cat([window[:, 1:], first[:, None]], 1), ptype, material, case)
+        first = simulator.step(window, ptype, material, constraints)
+        second = simulator.step(torch.cat([window[:, 1:], first[:, None]], 1), ptype, material, constraints)
     torch.testing.assert_close(produced, torch.cat([window[:, 2:], first[:, None], second[:, None]], 1), rtol=0, atol=0)
-    kinematic = ~case.movable
+    kinematic = ~constraints.movable
     assert torch.equal(produced[kinematic, -1], window[kinematic, -1])  # held, as in a rollout
-    noisy, target = simulator.training_inputs(produced, future[:, -1], case, torch.Generator().manual_seed(0))
+    noisy, target = training_inputs(simulator, produced, future[:, -1], constraints, torch.Generator().manual_seed(0))
     x, v = produced[:, -1], produced[:, -1] - produced[:, -2]
     expected = (future[:, -1] - x) - v  # the acceleration from the produced window to the true frame
     assert torch.equal(noisy, produced)  # no noise in this simulator
@@ -108,7 +110,7 @@ def test_an_unrolled_window_is_the_models_rollout_and_its_target_the_acceleratio
 
 def test_a_training_step_with_two_unrolled_steps_takes_its_loss_on_the_produced_window(tmp_path):
     data = write_dataset(tmp_path / "data")
-    sims = Simulations(data / "train.npz", torch.device("cpu"))
+    sims = TrainingWindows(data / "train.npz", torch.device("cpu"))
     bounds = torch.tensor(read_metadata(data)["bounds"])
     cfg = config(data, tmp_path / "run", pushforward=2, seed=0)
     ctx = Context(torch.device("cpu"))
@@ -117,14 +119,14 @@ def test_a_training_step_with_two_unrolled_steps_takes_its_loss_on_the_produced_
     simulator = tiny_simulator(noise=2.5e-3)
     sampler, noise_gen = _generators(cfg.seed, step, ctx)
     batch = sims.sample(cfg.batch_size, sampler, 2)
-    case = Case.of(batch.particle_type, bounds)
+    constraints = Constraints.of(batch.particle_type, bounds)
     with torch.no_grad():
         window = batch.window
         for _ in range(2):
-            window = torch.cat([window[:, 1:], simulator.step(window, batch.particle_type, batch.material, case, batch.graph)[:, None]], 1)
-        noisy, target = simulator.training_inputs(window, batch.future[:, -1], case, noise_gen)
+            window = torch.cat([window[:, 1:], simulator.step(window, batch.particle_type, batch.material, constraints, batch.graph)[:, None]], 1)
+        noisy, target = training_inputs(simulator, window, batch.future[:, -1], constraints, noise_gen)
     predicted = simulator(noisy, batch.particle_type, batch.material, bounds, batch.graph)
-    expected = simulator.loss(predicted, target, case).detach()
+    expected = masked_loss(predicted, target, constraints).detach()
     optimizer = torch.optim.Adam(simulator.parameters(), lr=0.0)
     loss = _train_step(simulator, simulator, optimizer, sims, bounds, cfg, step, ctx)
     torch.testing.assert_close(loss.detach(), expected, rtol=0, atol=0)
@@ -182,11 +184,11 @@ def test_the_pushforward_option_checks_its_range(tmp_path, capsys, value):
 
 
 def test_onset_share_draws_windows_from_the_first_frames_of_every_simulation(tmp_path):
-    """--onset-share 1: every window starts in its simulation's first --onset-frames frames
+    """An onset share of 1: every window starts in its simulation's first onset frames
     (counted from the earliest start, the windows at rest); 0 draws exactly as before; 0.5 about
     half of them."""
     data = write_dataset(tmp_path / "data", frames=40, n_train=3)
-    sims = Simulations(data / "train.npz", torch.device("cpu"))  # windows at rest: starts from frame -5
+    sims = TrainingWindows(data / "train.npz", torch.device("cpu"))  # windows at rest: starts from frame -5
     first = sims._windows(0)
     uniform = sims.sample(8, torch.Generator().manual_seed(3))
     same = sims.sample(8, torch.Generator().manual_seed(3), onset_share=0.0)
@@ -211,23 +213,23 @@ def test_onset_share_draws_windows_from_the_first_frames_of_every_simulation(tmp
 
 
 def test_an_onset_schedule_is_the_phases_run_one_after_another(tmp_path):
-    """--onset-schedule "0:0.4:4,6:0.1:2" trains exactly as 6 steps at --onset-share 0.4
-    --onset-frames 4 and then a --resume to step 12 at 0.1 and 2: the recipe's phases
-    (docs/training.md) in one resumable command."""
+    """--onset-schedule "0:0.4:4,6:0.1:2" trains exactly as 6 steps of "0:0.4:4" and then a
+    --resume to step 12 with "0:0.1:2": the recipe's phases (docs/training.md) in one resumable
+    command."""
     data = write_dataset(tmp_path / "data", frames=40, n_train=3)
     scheduled = train(config(data, tmp_path / "scheduled", steps=12, pushforward=1,
                              onset_schedule=parse_onset_schedule("0:0.4:4,6:0.1:2")))
-    train(config(data, tmp_path / "phases", steps=6, pushforward=1, onset_share=0.4, onset_frames=4))
-    phases = train(config(data, tmp_path / "phases", steps=12, pushforward=1, onset_share=0.1, onset_frames=2, resume=True))
+    train(config(data, tmp_path / "phases", steps=6, pushforward=1, onset_schedule=((0, 0.4, 4),)))
+    phases = train(config(data, tmp_path / "phases", steps=12, pushforward=1, onset_schedule=((0, 0.1, 2),), resume=True))
     assert same_weights(scheduled, phases) and log_lines(tmp_path / "scheduled") == log_lines(tmp_path / "phases")
     uniform = train(config(data, tmp_path / "uniform", steps=12, pushforward=1))
     assert not same_weights(scheduled, uniform)  # the schedule did draw other windows
 
 
 def test_onset_at_follows_the_last_entry_begun():
-    cfg = config("d", "o", onset_share=0.2, onset_frames=7, onset_schedule=parse_onset_schedule("10:0.4:4, 20:0:2"))
-    assert [onset_at(cfg, s) for s in (0, 9, 10, 19, 20, 10**6)] == [(0.2, 7), (0.2, 7), (0.4, 4), (0.4, 4), (0.0, 2), (0.0, 2)]
-    assert parse_onset_schedule("") == ()
+    cfg = config("d", "o", onset_schedule=parse_onset_schedule("10:0.4:4, 20:0:2"))
+    assert [onset_at(cfg, s) for s in (0, 9, 10, 19, 20, 10**6)] == [(0.0, 1), (0.0, 1), (0.4, 4), (0.4, 4), (0.0, 2), (0.0, 2)]
+    assert parse_onset_schedule("") == () and onset_at(config("d", "o", onset_schedule=()), 5) == (0.0, 1)
 
 
 @pytest.mark.parametrize("value, words", [
@@ -242,15 +244,19 @@ def test_a_bad_onset_schedule_is_exit_2_before_any_work(tmp_path, capsys, value,
     assert not (tmp_path / "run").exists()
 
 
-def test_the_recipe_as_options_gives_the_recipe(tmp_path, capsys, monkeypatch):
-    """`runout train` with recipe_options() trains with exactly RECIPE's settings (the campaign's
-    scripts pass the recipe that way)."""
+def test_the_recipe_is_the_default_and_its_options_give_it(tmp_path, capsys, monkeypatch):
+    """`runout train` without options trains with the recipe (TrainConfig's defaults), and with
+    recipe_options() (as the campaign's scripts pass it) with exactly the same settings."""
     import runout.train
-    from runout.train_settings import RECIPE, recipe_options
+    from runout.train_settings import RECIPE, TrainConfig, recipe_options, recipe_settings
 
     seen = []
     monkeypatch.setattr(runout.train, "train", lambda cfg: seen.append(cfg))
     data = write_dataset(tmp_path / "data")
-    code, err = run(["train", "--data", data, "--out", tmp_path / "run", *recipe_options()], capsys)
-    assert code == 0, err
-    assert {name: getattr(seen[0], name) for name in RECIPE} == RECIPE
+    for options in ([], recipe_options()):
+        code, err = run(["train", "--data", data, "--out", tmp_path / "run", *options], capsys)
+        assert code == 0, err
+    default, explicit = ({name: getattr(cfg, name) for name in RECIPE} for cfg in seen)
+    assert explicit == recipe_settings() and default == {**recipe_settings(), "overburden": None}  # None: on for a new run
+    assert recipe_settings()["onset_schedule"] == TrainConfig.onset_schedule == ((0, 0.4, 4), (12_000, 0.5, 2), (20_000, 0.1, 4))
+    assert (TrainConfig.noise, TrainConfig.pushforward, TrainConfig.ema, TrainConfig.mirror) == (0.01, 2, 0.999, 0.5)

@@ -14,10 +14,10 @@ from pathlib import Path
 
 import numpy as np
 
-from runout.contract import MAX_RADIUS, FeatureSchema, spacing_for_cells
+from runout.contract import MAX_RADIUS, WindowSchema, spacing_for_cells
 from runout.errors import InputError
 from runout.reading import read_json
-from runout.scene.validation import MAX_DOMAIN, MAX_FRAMES, SMALLEST_SIZE
+from runout.scene.limits import MAX_DOMAIN, MAX_FRAMES, SMALLEST_SIZE
 
 MAX_FRAME_DT = 10.0  # s between frames, as a scene's time.frame_dt allows
 MAX_RADIUS_SPACINGS = 10.0  # a connectivity radius of more point spacings gives each point > 300 neighbours
@@ -96,7 +96,7 @@ def dataset_metadata(meta: dict, source) -> None:
     number(meta["default_connectivity_radius"], "default_connectivity_radius", source, lo, hi, " m",
            lo_open=lo == 0.0, note=note)
     if "material_features" in meta:
-        problem = FeatureSchema.problem({"material_features": meta["material_features"]})
+        problem = WindowSchema.problem({"material_features": meta["material_features"]})
         if problem:
             raise InputError(f"{source}: {problem}.")
 

@@ -1,26 +1,23 @@
-"""The GNS contract, below everything that reads or writes GNS data: torch-free.
+"""The contract of the learned engines, below everything that reads or writes their data: torch-free.
 
-What a scene, a trajectory file, a dataset and a checkpoint agree on, one owner each:
+What a scene, a trajectory file, a dataset and every learned engine's checkpoint agree on, one
+owner each:
 
-    material codec      a material enters the GNS as [tan phi, c / 100 kPa] (paper Table 1,
-                        note a; a base model reads only the first column): encode_material,
-                        decode_material, decode_materials, MATERIAL_FEATURE_NAMES
+    material codec      a material enters a learned engine as [tan phi, c / 100 kPa] (paper
+                        Table 1, note a; a base model reads only the first column):
+                        encode_material, decode_material, decode_materials, MATERIAL_FEATURE_NAMES
     history             HISTORY = 6 positions per input window (5 velocities)
-    radius per spacing  the connectivity radius is RADIUS_PER_SPACING point spacings
+    radius per spacing  the connectivity radius of a dataset (metadata.json's
+                        default_connectivity_radius) is RADIUS_PER_SPACING point spacings
                         (radius_for_spacing, spacing_for_radius); the points sit
                         cell_size / points_per_cell apart (spacing_for_cells)
-    FeatureSchema       the node-feature layout stored in every checkpoint, and the frames
-                        a rollout starts from and needs (start_frames, check_frames)
-    NetworkConfig       the layer sizes every checkpoint stores, NETWORK_LIMITS their
-                        allowed range, MAX_STEPS the most training steps one records
+    WindowSchema        what a model reads of the data: a window of `history` positions
+                        `frame_stride` frames apart, each point's type (of `particle_types`) and
+                        its material features; the frames a rollout starts from and needs
+                        (start_frames, check_frames)
 
-Node features, in this column order (material features last, so a model can be widened
-with one more material input by appending zero columns to the encoder's first layer):
-
-    velocities   (history - 1) x dim   normalised per-step velocities, oldest first
-    walls        2 x dim               clip((x - lo) / R), clip((hi - x) / R) per dimension
-    type         type_embedding        learned embedding of the particle type
-    material     len(material_features) e.g. [tan phi, c / 100 kPa]
+What one engine alone needs stays in its package: the GNS's node inputs (wall clipping, the
+type embedding, the overburden) and layer sizes are runout.gns.schema.
 
 A step spans `frame_stride` dataset frames: the window holds the positions at frames t,
 t + K, ..., t + (history - 1) K, the velocities are differences over K frames and the model
@@ -31,7 +28,8 @@ rest: its window is frame 0 held, so it needs frame 0 and predicts frame K first
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
+from typing import ClassVar
 
 import numpy as np
 
@@ -47,33 +45,7 @@ RADIUS_PER_SPACING = 2.3
 MAX_RADIUS = 1000.0  # m: a connectivity radius beyond this would join a whole domain into one clique
 # Allowed [lowest, highest] of the numeric fields a checkpoint stores; every type table holds
 # the kinematic (3) and soil (6) types a scene fills.
-SCHEMA_LIMITS = {
-    "history": (2, 20), "dim": (2, 2), "wall_clip": (0.0, 100.0), "particle_types": (PARTICLE_TYPE_SOIL + 1, 64),
-    "type_embedding": (1, 256), "frame_stride": (1, 16),
-}
-
-MAX_STEPS = 1_000_000_000  # the most training steps a checkpoint may record (as `runout train --steps` allows)
-# Allowed layer sizes: [lowest, highest] of each NetworkConfig field.
-NETWORK_LIMITS = {"latent": (1, 1024), "hidden": (1, 1024), "hidden_layers": (1, 8), "message_passing_steps": (1, 50)}
-
-
-@dataclass(frozen=True)
-class NetworkConfig:
-    """The layer sizes of the encode-process-decode network, stored in every checkpoint."""
-
-    latent: int = 128
-    hidden: int = 128
-    hidden_layers: int = 2
-    message_passing_steps: int = 10
-
-    @staticmethod
-    def problem(d: dict) -> str | None:
-        """The first layer size outside NETWORK_LIMITS, as a phrase, or None."""
-        for key, (lo, hi) in NETWORK_LIMITS.items():
-            v = d.get(key, getattr(NetworkConfig, key))
-            if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-                return f"{key} = {v!r} is outside the allowed range [{lo}, {hi}] (a whole number)"
-        return None
+SCHEMA_LIMITS = {"history": (2, 20), "dim": (2, 2), "particle_types": (PARTICLE_TYPE_SOIL + 1, 64), "frame_stride": (1, 16)}
 
 
 # ----------------------------------------------------------------------------- spacing and radius
@@ -94,19 +66,22 @@ def spacing_for_radius(radius: float) -> float:
     return radius / RADIUS_PER_SPACING
 
 
-# ----------------------------------------------------------------------------- node-feature schema
+# ----------------------------------------------------------------------------- window schema
 
 
 @dataclass(frozen=True)
-class FeatureSchema:
+class WindowSchema:
+    """What a learned model reads of the data, stored in its checkpoint."""
+
     history: int = HISTORY  # positions per input window -> history - 1 velocities
     dim: int = 2
-    wall_clip: float = 1.0  # wall distances / R are clipped to [-wall_clip, wall_clip]
     particle_types: int = 9
-    type_embedding: int = 16
     material_features: tuple[str, ...] = MATERIAL_FEATURE_NAMES
     frame_stride: int = 1  # dataset frames per step (checkpoints without it: 1)
-    overburden: bool = False  # a node input: the depth of soil above each point in its column (checkpoints without it: none)
+
+    LIMITS: ClassVar[dict] = SCHEMA_LIMITS  # [lowest, highest] of each numeric field, in the order checked
+    WHOLE: ClassVar[tuple[str, ...]] = ("history", "dim", "particle_types", "frame_stride")  # whole-number fields
+    MODEL_ONLY: ClassVar[tuple[str, ...]] = ()  # fields that are the model's own choice: data never call for them
 
     @property
     def window_frames(self) -> int:
@@ -132,18 +107,8 @@ class FeatureSchema:
     def material_width(self) -> int:
         return len(self.material_features)
 
-    @property
-    def node_width(self) -> int:
-        """Columns entering the node encoder."""
-        return (self.history - 1) * self.dim + 2 * self.dim + int(self.overburden) + self.type_embedding + self.material_width
-
-    @property
-    def edge_width(self) -> int:
-        """Relative displacement / R (dim columns) and its length."""
-        return self.dim + 1
-
-    def with_material_features(self, names: tuple[str, ...]) -> "FeatureSchema":
-        return FeatureSchema(**{**asdict(self), "material_features": tuple(names)})
+    def with_material_features(self, names: tuple[str, ...]):
+        return replace(self, material_features=tuple(names))
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -151,41 +116,48 @@ class FeatureSchema:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "FeatureSchema":
+    def from_dict(cls, d: dict):
         known = {f.name for f in fields(cls)}
         kwargs = {k: v for k, v in d.items() if k in known}
         if "material_features" in kwargs:
             kwargs["material_features"] = tuple(kwargs["material_features"])
         return cls(**kwargs)
 
-    @staticmethod
-    def problem(d: dict) -> str | None:
-        """The first stored field outside SCHEMA_LIMITS or naming an unknown material
-        feature, as a phrase, or None."""
-        for key, (lo, hi) in SCHEMA_LIMITS.items():
-            v = d.get(key, getattr(FeatureSchema, key))
+    @classmethod
+    def problem(cls, d: dict) -> str | None:
+        """The first stored field outside LIMITS or naming an unknown material feature, as a
+        phrase, or None."""
+        for key, (lo, hi) in cls.LIMITS.items():
+            v = d.get(key, getattr(cls, key))
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not lo <= v <= hi:
                 return f"{key} = {v!r} is outside the allowed range [{lo:g}, {hi:g}]"
-        for key in ("history", "dim", "particle_types", "type_embedding", "frame_stride"):
+        for key in cls.WHOLE:
             if not isinstance(d.get(key, 0), int):
                 return f"{key} = {d[key]!r} must be a whole number"
-        if not isinstance(d.get("overburden", False), bool):
-            return f"overburden = {d['overburden']!r} must be true or false"
-        names = d.get("material_features", MATERIAL_FEATURE_NAMES)
-        if not isinstance(names, (list, tuple)) or list(names) != list(MATERIAL_FEATURE_NAMES[: len(names)]) or not names:
-            return f"material_features = {names!r} must be [tan_phi] or [tan_phi, c_over_100kPa]"
+        return cls._other_problem(d) or _material_problem(d)
+
+    @classmethod
+    def _other_problem(cls, d: dict) -> str | None:
+        """The first problem of a field that is neither a number in LIMITS nor the material features."""
         return None
 
-    def difference(self, other: "FeatureSchema") -> str | None:
+    def difference(self, other: "WindowSchema") -> str | None:
         """The first field in which `other` differs, as a phrase, or None when equal (the
-        overburden input is the model's own: data never call for it)."""
+        model's own fields, MODEL_ONLY, are not compared)."""
         for f in fields(self):
-            if f.name == "overburden":
+            if f.name in self.MODEL_ONLY:
                 continue
             mine, theirs = getattr(self, f.name), getattr(other, f.name)
             if mine != theirs:
                 return f"{f.name} is {_show(mine)} in the model but {_show(theirs)} in the data"
         return None
+
+
+def _material_problem(d: dict) -> str | None:
+    names = d.get("material_features", MATERIAL_FEATURE_NAMES)
+    if not isinstance(names, (list, tuple)) or list(names) != list(MATERIAL_FEATURE_NAMES[: len(names)]) or not names:
+        return f"material_features = {names!r} must be [tan_phi] or [tan_phi, c_over_100kPa]"
+    return None
 
 
 def _show(value) -> str:
@@ -200,7 +172,7 @@ def material_names_for_width(width: int) -> tuple[str, ...]:
 
 
 # ----------------------------------------------------------------------------- material codec
-# runout.gns.schema.encode_materials_torch is the same encoding, differentiable, for the inverse.
+# runout.learned.materials.encode_materials is the same encoding, differentiable, for the inverse.
 
 
 def encode_material(friction_angle: float, cohesion: float) -> list[float]:

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from runout import checks
-from runout.contract import FeatureSchema
+from runout.contract import WindowSchema
 from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
 from runout.reading import folder_to_read
@@ -22,7 +22,7 @@ from runout.simfiles import Simulation, iter_simulations, read_metadata, read_si
 from runout.trajectory import Trajectory, trajectory_from_features
 
 SPLITS = ("train", "valid", "test")
-NEW_MODEL_TYPES = FeatureSchema.particle_types  # rows of the type embedding `runout train` gives a new model
+NEW_MODEL_TYPES = WindowSchema.particle_types  # rows of the type embedding `runout train` gives a new model
 
 
 def load_split_trajectory(dataset: str | Path, split: str = "test", index: int = 0) -> Trajectory:

@@ -412,7 +412,7 @@ def draw_family(
     from runout.plots.families import draw_grid  # Matplotlib only when a picture is drawn
 
     out.parent.mkdir(parents=True, exist_ok=True)
-    draw_grid(samples, out)
+    draw_grid([(s.scene, s.family) for s in samples], out)
     if folder is not None:
         claim(folder)
         for s in samples:

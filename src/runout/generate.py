@@ -28,7 +28,7 @@ from tqdm.auto import tqdm
 
 import runout
 from runout import checks
-from runout.contract import MATERIAL_FEATURE_NAMES, FeatureSchema, radius_for_spacing, spacing_for_cells
+from runout.contract import MATERIAL_FEATURE_NAMES, WindowSchema, radius_for_spacing, spacing_for_cells
 from runout.dataset import SPLITS
 from runout.errors import InputError, RunFailed
 from runout.families import BLOCK_SIDE, BLOCK_SPEED, STAGES, family_sequence, sample_for_index, vertex_ranges
@@ -39,7 +39,7 @@ from runout.trajectory import Trajectory
 
 MIN_COUNT = 10  # so that the valid and test splits (k mod 10 = 8, 9) are never empty
 # a default model's window and the frame after it, so a model trains on the data with or without rest windows
-MIN_FRAMES = FeatureSchema().window_frames + 1
+MIN_FRAMES = WindowSchema().window_frames + 1
 MAX_COUNT = 1_000_000
 MAX_BATCH = 1024
 
@@ -68,7 +68,7 @@ class GenerateConfig:
             raise InputError(f"batch = {self.batch} is outside the allowed range [1, {MAX_BATCH}].")
         if self.frames < MIN_FRAMES:
             raise InputError(f"frames = {self.frames} must be at least {MIN_FRAMES} (the GNS reads "
-                             f"{FeatureSchema().window_frames}-frame windows).")
+                             f"{WindowSchema().window_frames}-frame windows).")
         if self.frames > MAX_FRAMES:
             raise InputError(f"frames = {self.frames} is outside the allowed range [{MIN_FRAMES}, {MAX_FRAMES}].")
         if not 1.0 <= self.cell_size <= 16.0:

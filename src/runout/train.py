@@ -1,7 +1,7 @@
 """One GNS training loop for CPU, one GPU and many GPUs (torchrun + DistributedDataParallel).
 
 Each step draws `batch_size` windows per process (at the frame stride: positions K frames
-apart; windows of a scene at rest included, runout.gns.samples), perturbs their input
+apart; windows of a scene at rest included, runout.gns.windows), perturbs their input
 positions with random-walk noise whose velocity std is `noise` times the data's velocity std
 (the mean of its x and y std of K-frame differences, m per step), corrects the target
 acceleration, and minimises
@@ -10,7 +10,7 @@ the paper's learning rate lr(i) = (1e-4 - 1e-6) 0.1^(i / 5e6) + 1e-6. With pushf
 each step first draws n uniformly from 0..N, rolls the model out n steps from the true
 windows without gradient, and trains on the window so produced (noise on top) against the
 true frame n steps further on. With mirror S, each window is first reflected left-right about
-the domain's centre with probability S (runout.gns.samples.mirrored). The random numbers of a
+the domain's centre with probability S (runout.gns.windows.mirrored). The random numbers of a
 step come from generators seeded by (seed, step, rank), and n from one seeded by (seed, step)
 alone, so every process unrolls as many steps, and a run resumed from any checkpoint repeats
 exactly what an unbroken run would have done (bitwise on CPU). Under torchrun, the forward goes through the DDP wrapper, which
@@ -39,14 +39,15 @@ from runout import checks
 from runout.dataset import split_trajectories
 from runout.defaults import FRAME_DT
 from runout.errors import InputError, Interrupted
-from runout.gns.checkpoint import (
-    check_resumable, check_schema, read_checkpoint, save_checkpoint, simulator_from_checkpoint,
-    widen_material_features,
-)
+from runout.gns.checkpoint import read_checkpoint, save_checkpoint, simulator_from_checkpoint
+from runout.gns.checkpoint_checks import check_resumable, check_schema
+from runout.gns.features import Constraints
+from runout.gns.fine_tuning import renormalise, restride, widen_material_features
 from runout.gns.rollout import rollout_trajectory
-from runout.gns.samples import Simulations, mirrored
 from runout.gns.schema import FeatureSchema
-from runout.gns.simulator import Case, Normalisation, Simulator
+from runout.gns.simulator import GraphNetworkSimulator, Normalisation
+from runout.gns.training import masked_loss, pushforward, training_inputs
+from runout.gns.windows import TrainingWindows, mirrored
 from runout.learned.training_range import measure as measure_ranges
 from runout.metrics import compare
 from runout.outputs import write_atomic
@@ -60,7 +61,6 @@ CHECKPOINT = "checkpoint.pt"
 BEST = "best.pt"
 LOG = "log.jsonl"
 SNAPSHOTS = "snapshots"  # --keep-every: copies of the checkpoint, step-<N>.pt
-MOVING_SPEED = 0.25  # m/s: a point faster than this over its target step is moving (0.0094 m per 1-frame step)
 
 
 def learning_rate(step: int, cfg: TrainConfig) -> float:
@@ -81,7 +81,7 @@ class Context:
         return self.rank == 0
 
 
-def train(cfg: TrainConfig, hooks: tuple[Hook, ...] = ()) -> Simulator:
+def train(cfg: TrainConfig, hooks: tuple[Hook, ...] = ()) -> GraphNetworkSimulator:
     """Train (or resume, or fine-tune) and return the trained simulator (rank 0's copy).
     Each of `hooks` is called with the Trainer after every step, before logging,
     validation and saving."""
@@ -109,10 +109,10 @@ def _start_processes(device: str) -> Context:
     return Context(dev, rank, world)
 
 
-def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Simulator:
+def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> GraphNetworkSimulator:
     meta = read_metadata(cfg.data)
-    data = Simulations(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"),
-                       rest_windows=cfg.rest_windows, static_tail=cfg.static_tail, frame_dt=float(meta.get("dt", FRAME_DT)))
+    data = TrainingWindows(Path(cfg.data) / "train.npz", ctx.device, material_names=meta.get("material_features"),
+                            rest_windows=cfg.rest_windows, frame_dt=float(meta.get("dt", FRAME_DT)))
     simulator, state, cfg = _build(cfg, meta, data)
     cfg = _native_bf16(cfg, ctx)
     data = data.with_stride(simulator.frame_stride)
@@ -136,7 +136,7 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Simu
         optimizer=optimizer, data=data, bounds=torch.tensor(meta["bounds"], dtype=torch.float32, device=ctx.device),
         cfg=cfg, ctx=ctx, log=RunLog(Path(cfg.out), ctx, state["step"] if state else 0, cfg.progress),
         best=state.get("best_valid", float("inf")) if state else float("inf"),
-        hooks=(*hooks, log_losses, validate, save), average=average,
+        hooks=(*hooks, log_losses, score_on_valid, save_when_due), average=average,
     )
     deadline = time.monotonic() + cfg.max_hours * 3600 if cfg.max_hours > 0 else None
     with StopRequest(deadline) as stop:
@@ -155,7 +155,7 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Simu
     return simulator.eval()
 
 
-def _last_step_weights(simulator: Simulator, state: dict | None) -> dict[str, torch.Tensor] | None:
+def _last_step_weights(simulator: GraphNetworkSimulator, state: dict | None) -> dict[str, torch.Tensor] | None:
     """A resumed run that kept a weight average holds it as `model` (now in the simulator) and
     its last step's weights as `train_model`: put those in the simulator, whose optimiser state
     they are, and return the average's parameters (None when there is none)."""
@@ -173,28 +173,28 @@ class WeightAverage:
     the last step's weights, from which --resume goes on. A run that had no average starts
     it from its current weights."""
 
-    def __init__(self, simulator: Simulator, decay: float, start: dict[str, torch.Tensor] | None = None):
+    def __init__(self, simulator: GraphNetworkSimulator, decay: float, start: dict[str, torch.Tensor] | None = None):
         self.decay = decay
         source = start if start is not None else dict(simulator.named_parameters())
         self.values = {n: source[n].detach().float().clone() for n, _ in simulator.named_parameters()}
 
     @torch.no_grad()
-    def update(self, simulator: Simulator) -> None:
+    def update(self, simulator: GraphNetworkSimulator) -> None:
         for name, p in simulator.named_parameters():
             self.values[name].lerp_(p.detach().float(), 1.0 - self.decay)
 
-    def state_dict(self, simulator: Simulator) -> dict:
+    def state_dict(self, simulator: GraphNetworkSimulator) -> dict:
         """simulator.state_dict() with the averaged parameters in place of the last step's."""
         state = simulator.state_dict()
         return {k: (self.values[k].to(v.dtype).clone() if k in self.values else v) for k, v in state.items()}
 
     @torch.no_grad()
-    def copy_to(self, simulator: Simulator) -> None:
+    def copy_to(self, simulator: GraphNetworkSimulator) -> None:
         for name, p in simulator.named_parameters():
             p.copy_(self.values[name])
 
     @contextmanager
-    def applied(self, simulator: Simulator):
+    def applied(self, simulator: GraphNetworkSimulator):
         """The simulator with the averaged weights inside the block, its own after."""
         own = {n: p.detach().clone() for n, p in simulator.named_parameters()}
         self.copy_to(simulator)
@@ -213,14 +213,14 @@ Hook = Callable[["Trainer"], None]
 class Trainer:
     """The training loop and its periodic duties. Each step sets the learning rate of the
     schedule, takes one optimiser step (_train_step), then calls every hook in turn with the
-    trainer, whose `done` is the number of steps taken; logging, validation and saving are
-    such hooks, and train(..., hooks=) adds others before them (a hook that sets
+    trainer, whose `done` is the number of steps taken; logging, scoring on the valid split and
+    saving are such hooks, and train(..., hooks=) adds others before them (a hook that sets
     `stop_reason` ends the run after this step, saved)."""
 
-    simulator: Simulator
+    simulator: GraphNetworkSimulator
     model: torch.nn.Module  # the simulator, or its DDP wrapper under torchrun
     optimizer: torch.optim.Optimizer
-    data: Simulations
+    data: TrainingWindows
     bounds: torch.Tensor  # [dim, 2] m
     cfg: TrainConfig
     ctx: Context
@@ -251,7 +251,7 @@ class Trainer:
                 hook(self)
             if stop.agreed(self.ctx) or self.stop_reason is not None:
                 if self.saved_at != self.done:
-                    self.save()
+                    self.write_checkpoint()
                 break
         return self.done
 
@@ -259,10 +259,18 @@ class Trainer:
         """Whether a duty of period `every` steps (0: never) falls on this step; the last step always does."""
         return bool(every) and (self.done % every == 0 or self.done == self.cfg.steps)
 
-    def save(self) -> None:
+    def write_checkpoint(self) -> None:
+        """OUT/checkpoint.pt (written atomically): the model (the weight average with --ema, and
+        the last step's weights as train_model), Adam's state, the step, the settings, the RNG
+        and the best validation score; every keep_every steps also a copy in snapshots/."""
         if self.ctx.writer:
-            path = _save(Path(self.cfg.out) / CHECKPOINT, self.simulator, self.optimizer, self.done, self.cfg,
-                         self.best, self.average)
+            weights = ({"model": self.average.state_dict(self.simulator), "train_model": self.simulator.state_dict()}
+                       if self.average else {})
+            path = save_checkpoint(
+                Path(self.cfg.out) / CHECKPOINT, self.simulator, optimizer=self.optimizer.state_dict(), step=self.done,
+                train=_settings(self.cfg), rng={"seed": self.cfg.seed, "torch": torch.get_rng_state()},
+                best_valid=self.best, **weights,
+            )
             if self.cfg.keep_every and self.done % self.cfg.keep_every == 0:
                 keep(path, Path(self.cfg.out) / SNAPSHOTS / f"step-{self.done}.pt")
         self.saved_at = self.done
@@ -284,19 +292,20 @@ def log_losses(trainer: Trainer) -> None:
         trainer.losses = []
 
 
-def validate(trainer: Trainer) -> None:
-    """Every valid_every steps, rollouts from rest on the validation set; best.pt kept."""
+def score_on_valid(trainer: Trainer) -> None:
+    """Every valid_every steps, rollouts from rest of the valid split's first scenes (with the
+    weight average under --ema); best.pt kept."""
     cfg = trainer.cfg
     if cfg.valid_every and trainer.done % cfg.valid_every == 0 and trainer.ctx.writer:
         with trainer.average.applied(trainer.simulator) if trainer.average else nullcontext(trainer.simulator) as model:
-            trainer.best = _validate(model, cfg, trainer.log, trainer.done, trainer.best)
+            trainer.best = _valid_rollouts(model, cfg, trainer.log, trainer.done, trainer.best)
 
 
-def save(trainer: Trainer) -> None:
+def save_when_due(trainer: Trainer) -> None:
     """Every save_every steps and at the last, the checkpoint (written atomically); also every
-    keep_every steps, which keeps a copy of it (Trainer.save)."""
+    keep_every steps, which keeps a copy of it (Trainer.write_checkpoint)."""
     if trainer.due(trainer.cfg.save_every) or trainer.due(trainer.cfg.keep_every):
-        trainer.save()
+        trainer.write_checkpoint()
 
 
 class StopRequest:
@@ -372,32 +381,20 @@ def _train_step(model, simulator, optimizer, data, bounds, cfg, step, ctx) -> to
     sampler, noise_gen = _generators(cfg.seed, step, ctx)
     batch = data.sample(cfg.batch_size, sampler, unrolled_steps(cfg.seed, step, cfg.pushforward), *onset_at(cfg, step))
     batch = mirrored(batch, bounds[0], cfg.mirror, sampler, graphs=cfg.batch_size)
-    case = Case.of(batch.particle_type, bounds, batch.window[:, 0], batch.graph, simulator.point_spacing)
+    constraints = Constraints.of(batch.particle_type, bounds, batch.window[:, 0], batch.graph, simulator.point_spacing)
     autocast = torch.autocast(ctx.device.type, dtype=torch.bfloat16) if cfg.bf16 else nullcontext()
     with autocast:  # the model's own rollout from the true window, without gradient (none when batch.unroll is 0)
-        window = simulator.pushforward(
-            batch.window, batch.unroll, batch.particle_type, batch.material, case, batch.graph
-        )
+        window = pushforward(simulator, batch.window, batch.unroll, batch.particle_type, batch.material, constraints,
+                             batch.graph)
     held = (batch.held - batch.unroll).clamp(min=0) if cfg.exact_rest and batch.held is not None else None
-    noisy, target = simulator.training_inputs(window, batch.future[:, -1], case, noise_gen, held)
+    noisy, target = training_inputs(simulator, window, batch.future[:, -1], constraints, noise_gen, held)
     with autocast:  # through `model`, the DDP wrapper under torchrun, so gradients synchronise
-        predicted = model(noisy, batch.particle_type, batch.material, case.bounds, batch.graph, cfg.checkpoint_layers)
-    loss = simulator.loss(predicted, target, case, _moving_weights(batch, cfg.moving_weight, data.frame_dt * data.stride))
+        predicted = model(noisy, batch.particle_type, batch.material, constraints.bounds, batch.graph, cfg.checkpoint_layers)
+    loss = masked_loss(predicted, target, constraints)
     optimizer.zero_grad(set_to_none=True)
     loss.backward()
     optimizer.step()
     return loss
-
-
-def _moving_weights(batch, moving_weight: float, step_dt: float) -> torch.Tensor | None:
-    """[N] loss weights: moving_weight for the points whose true target step (step_dt s long)
-    is faster than MOVING_SPEED, 1 for the others (None when moving_weight is 1: every point
-    counts the same)."""
-    if moving_weight == 1.0:
-        return None
-    before = batch.future[:, -2] if batch.unroll else batch.window[:, -1]  # the true frame before the target
-    moving = (batch.future[:, -1] - before).norm(dim=1) > MOVING_SPEED * step_dt  # m per step
-    return torch.where(moving, moving_weight, 1.0)
 
 
 def unrolled_steps(seed: int, step: int, pushforward: int) -> int:
@@ -417,7 +414,7 @@ def _generators(seed: int, step: int, ctx: Context) -> tuple[torch.Generator, to
     return sampler, noise
 
 
-def _build(cfg: TrainConfig, meta: dict, data: Simulations):
+def _build(cfg: TrainConfig, meta: dict, data: TrainingWindows):
     """The simulator to train, the resumed training state (or None) and the settings, after
     checking the options against each other and the data's particle types against the
     model's type table."""
@@ -466,7 +463,7 @@ def _stored_settings(ckpt: dict) -> dict:
     return ckpt["train"] if isinstance(ckpt.get("train"), dict) else {}
 
 
-def _start(cfg: TrainConfig, meta: dict, data: Simulations):
+def _start(cfg: TrainConfig, meta: dict, data: TrainingWindows):
     """The simulator, training state and settings of a resumed, fine-tuned or new run."""
     out = Path(cfg.out)
     if cfg.resume:
@@ -489,11 +486,11 @@ def _start(cfg: TrainConfig, meta: dict, data: Simulations):
         base = read_checkpoint(cfg.init)
         simulator = simulator_from_checkpoint(base, cfg.init)
         if cfg.frame_stride not in (None, simulator.frame_stride):
-            _restride(simulator, cfg.frame_stride, meta, data, cfg.noise)
+            restride(simulator, cfg.frame_stride, _stride_statistics(meta, data, cfg.frame_stride, cfg.noise))
         else:  # --noise is a fraction of this data's velocity std, whatever the base model trained with; the
             # normalisation becomes this data's widened by this noise, the weights adjusted so that training
             # starts from the base's predictions (a noisier base's scales would shrink the targets)
-            simulator.renormalise(_stride_statistics(meta, data, simulator.frame_stride, cfg.noise))
+            renormalise(simulator, _stride_statistics(meta, data, simulator.frame_stride, cfg.noise))
         wanted = data.schema(simulator.schema)
         if wanted.material_features != simulator.schema.material_features:
             widen_material_features(simulator, wanted.material_features, cfg.init)
@@ -503,13 +500,13 @@ def _start(cfg: TrainConfig, meta: dict, data: Simulations):
         return simulator, None, replace(cfg, lr_step_offset=offset, frame_stride=simulator.frame_stride)
     stride = cfg.frame_stride or 1
     stats = _stride_statistics(meta, data, stride, cfg.noise)
-    schema = data.schema(FeatureSchema(frame_stride=stride, overburden=bool(cfg.overburden)))
+    schema = data.schema(FeatureSchema(frame_stride=stride, overburden=cfg.overburden is not False))
     torch.manual_seed(cfg.seed)
     radius = cfg.radius if cfg.radius is not None else float(meta["default_connectivity_radius"])
-    return Simulator(schema, stats, radius, cfg.network), None, replace(cfg, frame_stride=stride)
+    return GraphNetworkSimulator(schema, stats, radius, cfg.network), None, replace(cfg, frame_stride=stride)
 
 
-def _check_overburden(cfg: TrainConfig, simulator: Simulator, source) -> None:
+def _check_overburden(cfg: TrainConfig, simulator: GraphNetworkSimulator, source) -> None:
     """InputError when --overburden / --no-overburden asks for a network input that the
     checkpoint it continues has not (or has): the node encoder's width is fixed by it."""
     if cfg.overburden is not None and cfg.overburden != simulator.schema.overburden:
@@ -519,17 +516,7 @@ def _check_overburden(cfg: TrainConfig, simulator: Simulator, source) -> None:
                          "or start a new run in another --out.")
 
 
-def _restride(simulator: Simulator, stride: int, meta: dict, data: Simulations, noise: float) -> None:
-    """Start a model of another frame stride from `simulator`'s weights (--init with
-    --frame-stride K): the schema records K and the normalisation becomes that of the data's
-    K-frame differences, with the noise scaled to a K-frame step. The network sees inputs and
-    targets normalised as before (velocities and accelerations in units of their own spread),
-    so its weights are a warm start for the longer step, not a model of it."""
-    simulator.schema = replace(simulator.schema, frame_stride=stride)
-    simulator.use_statistics(_stride_statistics(meta, data, stride, noise))
-
-
-def _stride_statistics(meta: dict, data: Simulations, stride: int, noise: float) -> Normalisation:
+def _stride_statistics(meta: dict, data: TrainingWindows, stride: int, noise: float) -> Normalisation:
     """Normalisation at `stride` frames per step, with velocity noise of `noise` times the
     mean of the x and y velocity std (m per step)."""
     stats = _statistics(meta, data, stride)
@@ -541,7 +528,7 @@ def noise_scale(stats: dict) -> float:
     return float(sum(stats["vel_std"]) / len(stats["vel_std"]))
 
 
-def _statistics(meta: dict, data: Simulations, stride: int) -> dict:
+def _statistics(meta: dict, data: TrainingWindows, stride: int) -> dict:
     """The normalisation statistics of a new run: metadata.json's (1-frame differences, as the
     generator measured them) at stride 1, else those of the stride's differences measured now
     on the training data."""
@@ -553,17 +540,7 @@ def _settings(cfg: TrainConfig) -> dict:
     return {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
 
 
-def _save(path: Path, simulator, optimizer, step: int, cfg: TrainConfig, best: float,
-          average: WeightAverage | None = None) -> Path:
-    train_settings = _settings(cfg)
-    weights = {"model": average.state_dict(simulator), "train_model": simulator.state_dict()} if average else {}
-    return save_checkpoint(
-        path, simulator, optimizer=optimizer.state_dict(), step=step, train=train_settings,
-        rng={"seed": cfg.seed, "torch": torch.get_rng_state()}, best_valid=best, **weights,
-    )
-
-
-def _validate(simulator: Simulator, cfg: TrainConfig, log: "RunLog", step: int, best: float) -> float:
+def _valid_rollouts(simulator: GraphNetworkSimulator, cfg: TrainConfig, log: "RunLog", step: int, best: float) -> float:
     """Roll out the first validation trajectories from rest; keep best.pt by mean position MSE."""
     path = Path(cfg.data) / "valid.npz"
     if not path.is_file():
@@ -571,8 +548,7 @@ def _validate(simulator: Simulator, cfg: TrainConfig, log: "RunLog", step: int, 
     results = []
     simulator.eval()
     for truth in split_trajectories(cfg.data, "valid", cfg.valid_trajectories):
-        frames = cfg.valid_frames or truth.n_frames
-        predicted = rollout_trajectory(simulator, truth, min(frames, truth.n_frames), stop_speed=None)  # from rest
+        predicted = rollout_trajectory(simulator, truth, truth.n_frames, stop_speed=None)  # from rest
         results.append(compare(predicted, truth))
     simulator.train()
     mse = sum(r["position_mse_mean_m2"] for r in results) / len(results)

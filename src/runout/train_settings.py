@@ -1,7 +1,7 @@
 """The settings of a GNS training run, torch-free: TrainConfig (every field a `runout train`
-option derives its default from), SETTING_LIMITS (the allowed value of every setting a user
-gives, one table) and check_settings. runout.train runs them; the command line reads them
-without loading torch.
+option derives its default from; the defaults are the recipe the pilots chose, docs/training.md),
+SETTING_LIMITS (the allowed value of every setting a user gives, one table) and check_settings.
+runout.train runs them; the command line reads them without loading torch.
 """
 
 from __future__ import annotations
@@ -10,29 +10,35 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 from runout import checks
-from runout.contract import MAX_STEPS, NETWORK_LIMITS, SCHEMA_LIMITS, NetworkConfig
-from runout.scene.validation import MAX_FRAMES
+from runout.contract import SCHEMA_LIMITS
+from runout.gns.schema import MAX_STEPS, NETWORK_LIMITS, NetworkConfig  # noqa: F401  (NetworkConfig re-exported for the command line)
 
 PUSHFORWARD_LIMITS = (0, 10)  # allowed --pushforward: the most rollout steps before a training step
 
 
 @dataclass
 class TrainConfig:
+    """A training run's settings. The defaults are the recipe (RECIPE names the settings the
+    pilots of docs/training.md chose, rounds 1-12): a learning rate and decay for budgets of tens
+    of thousands of steps, noise 0.01 of the velocity std, no noise on the scene at rest,
+    pushforward 2, a weight average, activations kept (no recomputation), the onset of motion
+    drawn in three phases (the start from rest first, then the decelerations), the overburden
+    input, and half the windows mirrored left-right (the physics has no side; the slope families
+    all fail to the right)."""
+
     data: Path
     out: Path
     steps: int = 2_000_000  # final value of the step counter
     batch_size: int = 2  # graphs per process and step
-    lr_init: float = 1e-4
+    lr_init: float = 4e-4
     lr_final: float = 1e-6
-    lr_decay_steps: float = 5e6
-    noise: float = 0.1  # velocity noise std as a fraction of the data's velocity std
+    lr_decay_steps: float = 200_000.0  # steps over which the learning rate falls tenfold (the paper's 5e6 suits millions of steps)
+    noise: float = 0.01  # velocity noise std as a fraction of the data's velocity std
     rest_windows: bool = True  # also train on windows that start before frame 0 (a scene at rest)
-    exact_rest: bool = False  # no noise on the held copies of frame 0 in a window (a rollout starts from them exactly)
-    static_tail: int | None = None  # frames kept after a simulation's flow stops (None: all)
-    moving_weight: float = 1.0  # loss weight of a point moving faster than MOVING_SPEED against 1 for one that does not
-    onset_share: float = 0.0  # share of the windows drawn from each simulation's first onset_frames frames (0: uniform)
-    onset_frames: int = 20  # dataset frames from the earliest window start that count as the onset of motion
-    onset_schedule: tuple[tuple[int, float, int], ...] = ()  # (from step, share, frames): onset settings by step, overriding the two above from each step on
+    exact_rest: bool = True  # no noise on the held copies of frame 0 in a window (a rollout starts from them exactly)
+    # (from step, share, frames): from each step on, that share of the windows is drawn from each
+    # simulation's first `frames` frames (the onset of motion), the rest uniformly; uniformly before the first
+    onset_schedule: tuple[tuple[int, float, int], ...] = ((0, 0.4, 4), (12_000, 0.5, 2), (20_000, 0.1, 4))
     seed: int = 0
     device: str = "auto"  # auto, cpu, cuda, cuda:1, ...
     resume: bool = False
@@ -43,19 +49,18 @@ class TrainConfig:
     log_every: int = 100
     valid_every: int = 20_000  # 0: never
     valid_trajectories: int = 1
-    valid_frames: int = 0  # 0: the whole trajectory
-    checkpoint_layers: bool = True  # recompute processor steps in backward (less memory)
+    checkpoint_layers: bool = False  # recompute processor steps in backward (less memory, slower)
     bf16: bool = False  # autocast the network to bfloat16
     lr_step_offset: int = 0  # learning-rate schedule continues from the base model's step
     max_hours: float = 0.0  # wall-clock limit of this run; 0: none
     radius: float | None = None  # connectivity radius in m (None: the dataset's default)
     frame_stride: int | None = None  # dataset frames per GNS step (None: 1, or the checkpoint's on --resume / --init)
-    pushforward: int = 0  # each step first unrolls n ~ U{0..pushforward} steps without gradient (0: one-step)
+    pushforward: int = 2  # each step first unrolls n ~ U{0..pushforward} steps without gradient (0: one-step)
     compile: bool = False  # run the network through torch.compile (1.19x the steps on one CPU thread, docs/training.md)
-    ema: float = 0.0  # decay per step of the weight average saved as the model (0: the last step's weights)
-    overburden: bool | None = None  # give the network each point's depth of soil above it (None: the checkpoint's, else no)
+    ema: float = 0.999  # decay per step of the weight average saved as the model (0: the last step's weights)
+    overburden: bool | None = None  # give the network each point's depth of soil above it (None: the checkpoint's, else yes)
     progress: bool = True  # a progress bar on stderr (log.jsonl is written either way)
-    mirror: float = 0.0  # share of training windows mirrored left-right about the domain's centre (the physics has no side; slope families b and c all fail to the right)
+    mirror: float = 0.5  # share of training windows mirrored left-right about the domain's centre
 
 
 @dataclass(frozen=True)
@@ -71,10 +76,8 @@ class Limit:
 SETTING_LIMITS = {
     "steps": Limit(1, MAX_STEPS), "batch_size": Limit(1, 64), "lr_init": Limit(0.0, 1.0, lo_open=True),
     "lr_decay_steps": Limit(1.0, 1e12), "noise": Limit(0.0, 10.0, " velocity std"),
-    "static_tail": Limit(0, 1_000_000, " frames"), "moving_weight": Limit(1.0, 1000.0),
-    "onset_share": Limit(0.0, 1.0), "onset_frames": Limit(1, 1_000_000, " frames"),
     "save_every": Limit(1, 1_000_000_000), "keep_every": Limit(0, 1_000_000_000), "log_every": Limit(1, 1_000_000_000), "valid_every": Limit(0, 1_000_000_000),
-    "valid_trajectories": Limit(1, 10_000), "valid_frames": Limit(0, MAX_FRAMES), "max_hours": Limit(0.0, 1000.0, " h"),
+    "valid_trajectories": Limit(1, 10_000), "max_hours": Limit(0.0, 1000.0, " h"),
     "radius": Limit(0.1, 1000.0, " m"), "frame_stride": Limit(*SCHEMA_LIMITS["frame_stride"]),
     "pushforward": Limit(*PUSHFORWARD_LIMITS), "ema": Limit(0.0, 0.99999), "mirror": Limit(0.0, 1.0),
     **{name: Limit(lo, hi) for name, (lo, hi) in NETWORK_LIMITS.items()},
@@ -82,26 +85,24 @@ SETTING_LIMITS = {
 OPTION_NAMES = {"lr_init": "--lr"}  # the `runout train` options not named --field-name
 
 
-# The training recipe, as TrainConfig fields: a learning rate and decay for budgets of tens of
-# thousands of steps, noise 0.01 of the velocity std, no noise on the scene at rest, pushforward
-# 2, a weight average, activations kept (no recomputation), the onset of motion drawn in three
-# phases (the start from rest first, then the decelerations), the overburden input, and half the
-# windows mirrored left-right (the physics has no side; the slope families all fail to the
-# right). docs/training.md gives the pilots and chunks that chose each setting and their figures.
-# The campaign's scripts (scripts/cpu_chunk.sh, scripts/gpu_session.py) train with it.
-RECIPE = {
-    "lr_init": 4e-4, "lr_decay_steps": 200_000.0, "noise": 0.01, "exact_rest": True, "pushforward": 2,
-    "ema": 0.999, "checkpoint_layers": False, "onset_schedule": ((0, 0.4, 4), (12_000, 0.5, 2), (20_000, 0.1, 4)),
-    "overburden": True, "mirror": 0.5,
-}
+# The settings the recipe chose, whose TrainConfig defaults are its values (docs/training.md gives
+# the pilots and chunks that chose each and their figures). The campaign's scripts
+# (scripts/cpu_chunk.sh) pass them explicitly (recipe_options), so a chunk says what it trains with.
+RECIPE = ("lr_init", "lr_decay_steps", "noise", "exact_rest", "pushforward", "ema", "checkpoint_layers", "onset_schedule",
+          "overburden", "mirror")
+
+
+def recipe_settings() -> dict:
+    """RECIPE's settings with TrainConfig's defaults, as a new run takes them (the overburden input on)."""
+    return {name: True if name == "overburden" else getattr(TrainConfig, name) for name in RECIPE}
 
 
 def recipe_options() -> list[str]:
-    """RECIPE as `runout train` options."""
+    """The recipe as `runout train` options."""
     options = []
-    for name, value in RECIPE.items():
+    for name, value in recipe_settings().items():
         if name == "onset_schedule":
-            options += ["--onset-schedule", ",".join(f"{step}:{share:g}:{frames}" for step, share, frames in value)]
+            options += ["--onset-schedule", format_onset_schedule(value)]
         elif name == "exact_rest":
             options.append("--exact-rest" if value else "--noisy-rest")
         elif isinstance(value, bool):  # --checkpoint-layers/--no-checkpoint-layers, --overburden/--no-overburden, ...
@@ -117,10 +118,16 @@ def trained_with_recipe(train_settings: dict) -> bool:
     return bool(train_settings.get("exact_rest"))
 
 
+def format_onset_schedule(schedule) -> str:
+    """The --onset-schedule text of a schedule: ((0, 0.4, 4), (12000, 0.5, 2)) -> "0:0.4:4,12000:0.5:2"."""
+    return ",".join(f"{step}:{share:g}:{frames}" for step, share, frames in schedule)
+
+
 def parse_onset_schedule(text: str | None) -> tuple[tuple[int, float, int], ...]:
     """--onset-schedule "STEP:SHARE:FRAMES,...", e.g. "0:0.4:4,14000:0.5:2,24000:0.1:4": from
-    each STEP on, windows are drawn with --onset-share SHARE and --onset-frames FRAMES. Steps
-    must rise; an empty text is no schedule. InputError naming the entry otherwise."""
+    each STEP on, a share SHARE of the windows is drawn from each simulation's first FRAMES
+    frames, the rest uniformly. Steps must rise; an empty text is no schedule (every window
+    drawn uniformly). InputError naming the entry otherwise."""
     if not text:
         return ()
     schedule = []
@@ -143,10 +150,13 @@ def parse_onset_schedule(text: str | None) -> tuple[tuple[int, float, int], ...]
     return tuple(schedule)
 
 
+UNIFORM = (0.0, 1)  # (onset share, onset frames) of a step before the schedule's first entry: no onset draws
+
+
 def onset_at(cfg: TrainConfig, step: int) -> tuple[float, int]:
     """The (onset share, onset frames) of the training step `step`: the last --onset-schedule
-    entry that has begun, else --onset-share and --onset-frames."""
-    return schedule_phase(cfg.onset_schedule, step, (cfg.onset_share, cfg.onset_frames))
+    entry that has begun, else UNIFORM."""
+    return schedule_phase(cfg.onset_schedule, step, UNIFORM)
 
 
 def schedule_phase(schedule, step: int, default: tuple[float, int]) -> tuple[float, int]:

@@ -31,7 +31,7 @@ def compare(
     from runout.cli.gns_commands import check_range
     from runout.compare import run_compare
     from runout.mpm.cache import MpmCache
-    from runout.scene.validation import MAX_FRAMES
+    from runout.scene.limits import MAX_FRAMES
 
     check_range("--frames", frames, 1, MAX_FRAMES)  # the least the model needs: run_compare checks it
     checks.device(device)

@@ -17,11 +17,11 @@ from pathlib import Path
 import typer
 
 from runout.cli.app import app
-from runout.errors import InputError
 from runout.defaults import MPM_CACHE as DEFAULT_CACHE
-from runout.evaluate.cases import PAPER_CASE, ColumnGrid, SensitivityConfig
+from runout.errors import InputError
+from runout.evaluate.study_settings import PAPER_CASE, ColumnGrid, SensitivityConfig
 from runout.scene import EXAMPLES
-from runout.scene.validation import MAX_FRAMES
+from runout.scene.limits import MAX_FRAMES
 
 evaluate_app = typer.Typer(
     help="Measure a learned model against the MPM: held-out scenes from rest, and the paper's column, slope, diagnostics, inverse and data-size studies.",
@@ -59,9 +59,9 @@ class Study:
 
     def start(self, name: str, frames: int | None):
         """Check the options (--device, --scale, then --frames against the model's needs),
-        make OUT/NAME's place in OUT and return the engines the study runs (an EngineRun)."""
+        make OUT/NAME's place in OUT and return the engines the study runs (an StudyContext)."""
         from runout import checks
-        from runout.evaluate import EngineRun, MpmCache
+        from runout.evaluate import StudyContext, MpmCache
         from runout.evaluate.scenes import check_scale
 
         checks.device(self.device)
@@ -71,7 +71,7 @@ class Study:
 
             load_engine(self.model).check_frames(frames, "--frames")
         _claim_out(self.out, name, self.force, {"--model": self.model, "--examples": self.examples})
-        return EngineRun(MpmCache(self.cache), self.device, self.progress, log=typer.echo)
+        return StudyContext(MpmCache(self.cache), self.device, self.progress, log=typer.echo)
 
 
 def study_command(func: Callable) -> Callable:

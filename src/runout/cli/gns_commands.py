@@ -11,9 +11,8 @@ import typer
 
 from runout.cli.app import app
 from runout.errors import InputError
-from runout.contract import NetworkConfig
-from runout.scene.validation import MAX_FRAMES
-from runout.train_settings import TrainConfig, option_name
+from runout.scene.limits import MAX_FRAMES
+from runout.train_settings import NetworkConfig, TrainConfig, format_onset_schedule, option_name
 
 MAX_STOP_SPEED = 100.0  # m/s
 SETTING_OF_PARAMETER = {"lr": "lr_init", "message_passing": "message_passing_steps"}  # `train` parameters named apart from their setting
@@ -37,17 +36,13 @@ def train(
     frame_stride: int = typer.Option(TrainConfig.frame_stride, "--frame-stride", help="Dataset frames per GNS step, 1-16 (default 1; --resume keeps the checkpoint's, --init keeps it unless this asks for another)."),
     pushforward: int = typer.Option(TrainConfig.pushforward, "--pushforward", help="Pushforward training, N = 0-10: each step rolls the model out n steps without gradient, n uniform in 0..N per step, and trains on the window it made (0: one-step training)."),
     compile_network: bool = typer.Option(TrainConfig.compile, "--compile", help="Run the network through torch.compile (dynamic shapes): 1.19x the steps per second on one CPU thread, after a first minute or so of compiling in each process; needs a C++ compiler on a CPU. The checkpoint is the same either way."),
-    ema: float = typer.Option(TrainConfig.ema, "--ema", help="Save, validate and fine-tune from an exponential moving average of the weights with this decay per step, e.g. 0.999 (an average over about 1,000 steps); 0: the last step's weights. The onset of motion hangs on accelerations of 0.001 m/step², which one step's weights swing."),
+    ema: float = typer.Option(TrainConfig.ema, "--ema", help="Save, score on the valid split and fine-tune from an exponential moving average of the weights with this decay per step, e.g. 0.999 (an average over about 1,000 steps); 0: the last step's weights. The onset of motion hangs on accelerations of 0.001 m/step², which one step's weights swing."),
     noise: float = typer.Option(TrainConfig.noise, "--noise", help="Velocity noise std of the inputs, as a fraction of the data's velocity std (mean of x and y, m per step); docs/training.md gives the pilots behind the default."),
     rest_windows: bool = typer.Option(TrainConfig.rest_windows, "--rest-windows/--no-rest-windows", help="Also train on windows that start before frame 0 (the scene at rest, where every rollout starts)."),
     exact_rest: bool = typer.Option(TrainConfig.exact_rest, "--exact-rest/--noisy-rest", help="Put no noise on a window's held copies of frame 0 (a rollout starts from the scene at rest exactly; the noise walk starts with its first step)."),
-    moving_weight: float = typer.Option(TrainConfig.moving_weight, "--moving-weight", help="Loss weight of a point moving faster than 0.25 m/s over its target step, against 1 for a slower one (1: every point the same)."),
-    onset_share: float = typer.Option(TrainConfig.onset_share, "--onset-share", help="Share of the windows drawn from the onset of motion, each simulation's first --onset-frames frames (windows at rest included), instead of uniformly (0: uniform)."),
-    onset_frames: int = typer.Option(TrainConfig.onset_frames, "--onset-frames", help="Dataset frames from the earliest window start that count as the onset (--onset-share)."),
-    onset_schedule: str = typer.Option("", "--onset-schedule", help="Onset settings by step, STEP:SHARE:FRAMES,... e.g. 0:0.4:4,14000:0.5:2,24000:0.1:4 (the recipe's three phases, docs/training.md): from each STEP on, windows are drawn as --onset-share SHARE --onset-frames FRAMES would; before the first STEP, those two options hold."),
-    overburden: bool = typer.Option(TrainConfig.overburden, "--overburden/--no-overburden", help="Give the network each point's depth of soil above it in its column (m / 100; at rest the overburden that sets its stress), which 5 message-passing steps of 9.2 m cannot see on a slope taller than 46 m. New runs only; --resume and --init keep the checkpoint's (default: none)."),
+    onset_schedule: str = typer.Option(format_onset_schedule(TrainConfig.onset_schedule), "--onset-schedule", help="The onset of motion by step, STEP:SHARE:FRAMES,... (the recipe's three phases, docs/training.md): from each STEP on, a share SHARE of the windows is drawn from each simulation's first FRAMES frames (windows at rest included), the rest uniformly; before the first STEP, or with an empty schedule, every window uniformly."),
+    overburden: bool = typer.Option(TrainConfig.overburden, "--overburden/--no-overburden", help="Give the network each point's depth of soil above it in its column (m / 100; at rest the overburden that sets its stress), which 5 message-passing steps of 9.2 m cannot see on a slope taller than 46 m. New runs only (default: on); --resume and --init keep the checkpoint's."),
     mirror: float = typer.Option(TrainConfig.mirror, "--mirror", help="Share of the training windows reflected left-right about the domain's centre, 0-1 (the physics has no side; the slope families all fail to the right). The recipe's is 0.5."),
-    static_tail: int = typer.Option(TrainConfig.static_tail, "--static-tail", help="Train only up to this many frames after a simulation's flow stops (soil slower than 0.05 m/s); default: every frame."),
     latent: int = typer.Option(NetworkConfig.latent, "--latent", help="Latent size of nodes and edges."),
     hidden: int = typer.Option(NetworkConfig.hidden, "--hidden", help="Units of each hidden MLP layer."),
     message_passing: int = typer.Option(NetworkConfig.message_passing_steps, option_name("message_passing_steps"), help="Processor steps (unshared weights)."),
@@ -56,7 +51,6 @@ def train(
     log_every: int = typer.Option(TrainConfig.log_every, "--log-every", help="Steps per log.jsonl line (mean loss)."),
     valid_every: int = typer.Option(TrainConfig.valid_every, "--valid-every", help="Steps between validation rollouts (0: never)."),
     valid_trajectories: int = typer.Option(TrainConfig.valid_trajectories, "--valid-trajectories", help="Validation trajectories rolled out each time."),
-    valid_frames: int = typer.Option(TrainConfig.valid_frames, "--valid-frames", help="Frames per validation rollout (0: whole trajectory)."),
     seed: int = typer.Option(TrainConfig.seed, "--seed", help="Seed of the initial weights, window sampling and noise."),
     bf16: bool = typer.Option(TrainConfig.bf16, "--bf16", help="Autocast the network to bfloat16 (faster on GPUs and on CPUs with AVX512-BF16 or AMX; elsewhere on a CPU it trains in float32, with a warning)."),
     checkpoint_layers: bool = typer.Option(TrainConfig.checkpoint_layers, "--checkpoint-layers/--no-checkpoint-layers", help="Recompute processor steps in backward to save memory."),
@@ -73,12 +67,11 @@ def train(
 
     cfg = TrainConfig(
         data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise=noise,
-        rest_windows=rest_windows, exact_rest=exact_rest, static_tail=static_tail, moving_weight=moving_weight,
-        onset_share=onset_share, onset_frames=onset_frames, onset_schedule=parse_onset_schedule(onset_schedule),
+        rest_windows=rest_windows, exact_rest=exact_rest, onset_schedule=parse_onset_schedule(onset_schedule),
         seed=seed, device=device, resume=resume, init=init,
         network=NetworkConfig(latent=latent, hidden=hidden, message_passing_steps=message_passing),
         save_every=save_every, keep_every=keep_every, log_every=log_every, valid_every=valid_every,
-        valid_trajectories=valid_trajectories, valid_frames=valid_frames,
+        valid_trajectories=valid_trajectories,
         checkpoint_layers=checkpoint_layers, bf16=bf16, lr_decay_steps=lr_decay_steps,
         max_hours=max_hours, radius=radius, overburden=overburden, frame_stride=frame_stride, pushforward=pushforward, ema=ema, compile=compile_network,
         mirror=mirror, progress=progress,

@@ -1,7 +1,7 @@
 """The paper's forward and inverse studies as reproducible runs for any GNS checkpoint.
 
-    from runout.evaluate import ColumnGrid, EngineRun, MpmCache, run_columns, write_report
-    run_columns("model.pt", "out/eval", ColumnGrid(), EngineRun(MpmCache(), device="cuda"))
+    from runout.evaluate import ColumnGrid, MpmCache, StudyContext, run_columns, write_report
+    run_columns("model.pt", "out/eval", ColumnGrid(), StudyContext(MpmCache(), device="cuda"))
     write_report("out/eval", "docs/results.md")
 
 Every study writes OUT/<study>/summary.json (with the model's card), a CSV where there is a
@@ -13,10 +13,11 @@ See docs/evaluation.md.
 from importlib import import_module
 
 # Each name and the module that owns it; a study's engines load only when it is used, so the
-# command line (which reads the cases) starts without torch.
+# command line (which reads the study settings) starts without torch.
 _OWNERS = {
-    "ColumnCase": "cases", "ColumnGrid": "cases", "PAPER_CASE": "cases", "SensitivityConfig": "cases",
-    "run_columns": "columns", "run_diagnostics": "diagnostics", "EngineRun": "engines",
+    "ColumnCase": "study_settings", "ColumnGrid": "study_settings", "PAPER_CASE": "study_settings",
+    "SensitivityConfig": "study_settings",
+    "run_columns": "columns", "run_diagnostics": "diagnostics", "StudyContext": "context",
     "run_inverse": "inverse_study", "write_report": "report", "column_file": "scenes", "column_scene": "scenes",
     "model_scene": "scenes", "scaled": "scenes", "run_sensitivity": "sensitivity", "run_slope": "slope",
 }

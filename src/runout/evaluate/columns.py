@@ -25,10 +25,10 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from runout.evaluate.column_figures import draw_error_heatmaps, draw_evolution, draw_runout_comparison
-from runout.evaluate.engines import EngineRun
+from runout.evaluate.context import StudyContext
 from runout.evaluate.model_card import model_card
-from runout.evaluate.cases import PAPER_ASPECTS, PAPER_COHESIONS, PAPER_PHIS, ColumnCase, ColumnGrid  # noqa: F401  (re-exported)
 from runout.evaluate.scenes import column_file, column_scene, model_scene
+from runout.evaluate.study_settings import PAPER_ASPECTS, PAPER_COHESIONS, PAPER_PHIS, ColumnCase, ColumnGrid  # noqa: F401  (re-exported)
 from runout.learned.engine import engine_label
 from runout.learned.load import load_engine
 from runout.metrics import (
@@ -45,7 +45,7 @@ CSV_COLUMNS = (
 
 
 @dataclass
-class CaseResult:
+class ColumnResult:
     case: str
     aspect: float
     phi_deg: float
@@ -61,7 +61,7 @@ class CaseResult:
     mpm_key: str
 
 
-def run_columns(model: Path, out: Path, grid: ColumnGrid, run: EngineRun) -> dict:
+def run_columns(model: Path, out: Path, grid: ColumnGrid, run: StudyContext) -> dict:
     """Run the study; returns the summary written to OUT/columns/summary.json."""
     folder = Path(out) / "columns"
     cases = grid.cases()
@@ -85,18 +85,18 @@ def run_columns(model: Path, out: Path, grid: ColumnGrid, run: EngineRun) -> dic
     return summary
 
 
-def case_result(case: ColumnCase, truth: Trajectory, predicted: Trajectory, edge: float, wall: float, key: str) -> CaseResult:
+def case_result(case: ColumnCase, truth: Trajectory, predicted: Trajectory, edge: float, wall: float, key: str) -> ColumnResult:
     """edge: half the point spacing (m), added to the largest x to get the material's front."""
     l0 = runout_front(truth, 0) + edge
     lf_mpm, lf_gns = runout_front(truth, -1) + edge, runout_front(predicted, -1) + edge
     n_mpm, n_gns = normalised_runout(l0, lf_mpm), normalised_runout(l0, lf_gns)
-    return CaseResult(
+    return ColumnResult(
         case.name, case.aspect, case.phi, case.cohesion, l0, lf_mpm, lf_gns, n_mpm, n_gns,
         float(absolute_percentage_error(n_gns, n_mpm)), predicted.n_frames, wall, key,
     )
 
 
-def write_csv(rows: list[CaseResult], path: Path) -> None:
+def write_csv(rows: list[ColumnResult], path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
     with path.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=CSV_COLUMNS)
@@ -105,7 +105,7 @@ def write_csv(rows: list[CaseResult], path: Path) -> None:
             writer.writerow(asdict(row))
 
 
-def aspect_statistics(rows: list[CaseResult]) -> list[dict]:
+def aspect_statistics(rows: list[ColumnResult]) -> list[dict]:
     """Per aspect ratio: number of cases, mean and CV of the error (%), R² of L^n."""
     stats = []
     for aspect in sorted({r.aspect for r in rows}):
@@ -121,13 +121,13 @@ def aspect_statistics(rows: list[CaseResult]) -> list[dict]:
     return stats
 
 
-def percentile_cases(rows: list[CaseResult]) -> dict[int, CaseResult]:
+def percentile_cases(rows: list[ColumnResult]) -> dict[int, ColumnResult]:
     """The case at each error percentile: rank round(q / 100 x (n - 1)) of the sorted errors."""
     ranked = sorted(rows, key=lambda r: (np.nan_to_num(r.ape_percent, nan=np.inf), r.case))
     return {q: ranked[round(q / 100 * (len(ranked) - 1))] for q in PERCENTILES}
 
 
-def summarise(rows: list[CaseResult], grid: ColumnGrid, model: Path) -> dict:
+def summarise(rows: list[ColumnResult], grid: ColumnGrid, model: Path) -> dict:
     ape = np.array([r.ape_percent for r in rows])
     return {
         "study": "columns",
@@ -143,7 +143,7 @@ def summarise(rows: list[CaseResult], grid: ColumnGrid, model: Path) -> dict:
     }
 
 
-def draw_outputs(rows: list[CaseResult], folder: Path, cache: MpmCache, scenes) -> None:
+def draw_outputs(rows: list[ColumnResult], folder: Path, cache: MpmCache, scenes) -> None:
     stats = aspect_statistics(rows)
     draw_runout_comparison(rows, stats, folder / "runout_1to1.png")
     draw_error_heatmaps(rows, stats, folder / "error_heatmaps.png")

@@ -18,11 +18,11 @@ from pathlib import Path
 
 import numpy as np
 
+from runout.evaluate.context import StudyContext
 from runout.evaluate.diagnostics_figures import draw_diagnostics
-from runout.evaluate.engines import EngineRun
 from runout.evaluate.model_card import model_card
-from runout.evaluate.cases import PAPER_CASE, ColumnCase  # noqa: F401  (PAPER_CASE re-exported)
 from runout.evaluate.scenes import EXAMPLES, column_file, column_scene, model_scene
+from runout.evaluate.study_settings import PAPER_CASE, ColumnCase  # noqa: F401  (PAPER_CASE re-exported)
 from runout.learned.load import load_engine
 from runout.metrics import at_common_times, velocities
 from runout.trajectory import Trajectory, save_trajectory
@@ -72,7 +72,7 @@ def _correlation(a: np.ndarray, b: np.ndarray) -> float | None:
     return float(np.corrcoef(a, b)[0, 1])
 
 
-def run_diagnostics(model: Path, out: Path, run: EngineRun, case: ColumnCase = PAPER_CASE, frames: int = 600,
+def run_diagnostics(model: Path, out: Path, run: StudyContext, case: ColumnCase = PAPER_CASE, frames: int = 600,
                     scale: float = 1.0, examples: Path = EXAMPLES) -> dict:
     """Run the diagnostics; returns the summary written to OUT/diagnostics/summary.json."""
     folder = Path(out) / "diagnostics"

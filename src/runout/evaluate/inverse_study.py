@@ -27,11 +27,11 @@ from pathlib import Path
 
 from matplotlib.figure import Figure  # no pyplot: no global figure state, no GUI backend
 
-from runout.evaluate.engines import EngineRun
+from runout.evaluate.context import StudyContext
 from runout.evaluate.model_card import model_card
 from runout.evaluate.scenes import EXAMPLES, example_scene, model_scene, scaled
-from runout.learned.load import load_engine
 from runout.inverse import invert
+from runout.learned.load import load_engine
 from runout.plots import draw_displacement, draw_materials
 from runout.scene import save_scene
 from runout.trajectory import Trajectory, load_trajectory
@@ -44,7 +44,7 @@ YARDSTICK = "mpm-ad"
 YARDSTICK_RUN = "run_mpm_ad"
 
 
-def run_inverse(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLES, frames: int | None = None,
+def run_inverse(model: Path, out: Path, run: StudyContext, examples: Path = EXAMPLES, frames: int | None = None,
                 scale: float = 1.0, max_iterations: int | None = None, log=None, yardstick: bool = True) -> dict:
     """Run the study (the GNS, then the MPM-AD yardstick unless `yardstick` is False); returns
     the summary written to OUT/inverse/summary.json."""

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from runout import checks
 from runout.errors import InputError
-from runout.evaluate.cases import ColumnCase
+from runout.evaluate.study_settings import ColumnCase
 from runout.scene import EXAMPLES, Scene, load_scene
 
 COLUMN_ASPECTS = (0.5, 1.0, 2.0)  # H0 / L0 of examples/column_a{a}.toml

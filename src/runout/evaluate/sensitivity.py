@@ -26,20 +26,19 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from runout.contract import FeatureSchema
+from runout.contract import WindowSchema
 from runout.dataset import split_trajectories
 from runout.defaults import FRAME_DT
 from runout.errors import InputError
-from runout.evaluate.cases import BUDGETS, PAPER_SIZES, SensitivityConfig  # noqa: F401  (re-exported)
 from runout.evaluate.model_card import model_card
 from runout.evaluate.sensitivity_figures import draw_loss_histories, draw_rollout_mse
+from runout.evaluate.study_settings import BUDGETS, PAPER_SIZES, SensitivityConfig  # noqa: F401  (re-exported)
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
-from runout.gns.samples import Simulations
+from runout.gns.windows import TrainingWindows
 from runout.metrics import position_mse
 from runout.simfiles import iter_simulations, read_metadata, write_simulations
 from runout.train import CHECKPOINT, TrainConfig, continued_onset, cpu_has_native_bf16, train
-from runout.train_settings import RECIPE
 
 
 
@@ -78,27 +77,24 @@ def write_subset(data: Path, folder: Path, size: int) -> Path:
     return folder
 
 
-def steps_per_epoch(subset: Path, batch_size: int, schema: FeatureSchema) -> int:
+def steps_per_epoch(subset: Path, batch_size: int, schema: WindowSchema) -> int:
     """Steps of one pass over the windows training samples from SUBSET/train.npz at the
-    schema's history and frame stride (with TrainConfig's rest windows and static tail)."""
-    data = Simulations(subset / "train.npz", torch.device("cpu"), schema.history, rest_windows=TrainConfig.rest_windows,
-                       static_tail=TrainConfig.static_tail, frame_dt=float(read_metadata(subset).get("dt", FRAME_DT)))
+    schema's history and frame stride (with TrainConfig's rest windows)."""
+    data = TrainingWindows(subset / "train.npz", torch.device("cpu"), schema.history, rest_windows=TrainConfig.rest_windows,
+                           frame_dt=float(read_metadata(subset).get("dt", FRAME_DT)))
     return max(1, math.ceil(data.with_stride(schema.frame_stride).n_windows / batch_size))
 
 
 def fine_tune(cfg: SensitivityConfig, subset: Path, run_dir: Path, steps: int) -> Path:
     """Fine-tune cfg.init on the subset to `steps` steps (resuming a run already there), with
-    the settings that trained the shipped model: the recipe (runout.train_settings.RECIPE:
-    noise, exact rest, pushforward, weight average), the learning rate going on from the
-    model's step, its onset phase continued and its own network inputs; bf16 on a CPU that
-    multiplies it natively. (TrainConfig's bare defaults, noise 0.1 among them, would teach the
-    model not to start from rest: docs/training.md, round 1.)"""
+    the settings that trained the shipped model: the recipe (TrainConfig's defaults: noise, exact
+    rest, pushforward, weight average), the learning rate going on from the model's step, its
+    onset phase continued and its own network inputs; bf16 on a CPU that multiplies it natively."""
     bf16 = torch.device(cfg.device).type == "cpu" and cpu_has_native_bf16()
-    recipe = RECIPE | {"overburden": None} | continued_onset(cfg.init)
     train(TrainConfig(
         data=subset, out=run_dir, steps=steps, batch_size=cfg.batch_size, device=cfg.device, init=cfg.init,
         resume=(run_dir / CHECKPOINT).is_file(), valid_every=0, bf16=bf16, progress=cfg.progress,
-        log_every=max(1, min(100, steps // 50)), save_every=max(1, min(10_000, steps // 10)), **recipe,
+        log_every=max(1, min(100, steps // 50)), save_every=max(1, min(10_000, steps // 10)), **continued_onset(cfg.init),
     ))
     return run_dir
 

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from runout.evaluate.engines import EngineRun
+from runout.evaluate.context import StudyContext
 from runout.evaluate.model_card import model_card
 from runout.evaluate.scenes import EXAMPLES, model_scene, scaled
 from runout.evaluate.slope_figures import draw_displacement_error, draw_fields
@@ -38,7 +38,7 @@ def snapshot_frames(n_frames: int, stride: int = 1) -> list[int]:
     return sorted({round(f / stride) for f in PAPER_FRAMES if round(f / stride) < n_frames} | {n_frames - 1})
 
 
-def run_slope(model: Path, out: Path, run: EngineRun, examples: Path = EXAMPLES, frames: int | None = None,
+def run_slope(model: Path, out: Path, run: StudyContext, examples: Path = EXAMPLES, frames: int | None = None,
               scale: float = 1.0, rerun_mpm: bool = False) -> dict:
     """Run the study; returns the summary written to OUT/slope/summary.json."""
     folder = Path(out) / "slope"

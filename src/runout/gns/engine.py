@@ -1,4 +1,4 @@
-"""The GNS as a learned engine (runout.learned.engine): the Simulator behind the contract every
+"""The GNS as a learned engine (runout.learned.engine): the GraphNetworkSimulator behind the contract every
 command is written against. Each member hands over to the GNS's own code (rollout,
 rollout_trajectory, start_window, the schema), so the GNS's figures are those it gave before
 the contract existed, bit for bit."""
@@ -11,14 +11,14 @@ import numpy as np
 import torch
 
 from runout.gns.rollout import rollout, rollout_trajectory, start_window
-from runout.gns.simulator import Simulator
+from runout.gns.simulator import GraphNetworkSimulator
 from runout.trajectory import Trajectory
 
 
 class GnsEngine:
     name = "gns"
 
-    def __init__(self, simulator: Simulator):
+    def __init__(self, simulator: GraphNetworkSimulator):
         self.simulator = simulator
 
     @property

@@ -19,7 +19,8 @@ from torch.utils.checkpoint import checkpoint as recompute_in_backward
 from tqdm.auto import tqdm
 
 from runout.errors import InputError, RolloutDiverged  # noqa: F401  (RolloutDiverged re-exported)
-from runout.gns.simulator import Case, Simulator
+from runout.gns.features import Constraints
+from runout.gns.simulator import GraphNetworkSimulator
 from runout.trajectory import Trajectory
 
 CHECK_EVERY = 10  # steps between host checks for NaN and for a stopped flow
@@ -27,7 +28,7 @@ MIN_FRAMES_BEFORE_STOP = 40  # dataset frames: a slope at rest needs time to sta
 
 
 def rollout(
-    simulator: Simulator,
+    simulator: GraphNetworkSimulator,
     initial_positions: torch.Tensor,
     particle_type: torch.Tensor,
     material: torch.Tensor,
@@ -53,27 +54,27 @@ def rollout(
     particle_type = particle_type.to(device)
     material = material.to(device)
     graph = None if graph is None else graph.to(device)
-    case = Case.of(particle_type, torch.as_tensor(bounds, dtype=window.dtype, device=device), window[:, 0], graph,
-                   simulator.point_spacing)
+    constraints = Constraints.of(particle_type, torch.as_tensor(bounds, dtype=window.dtype, device=device), window[:, 0],
+                                 graph, simulator.point_spacing)
     frames = list(window.unbind(1))
     min_frames = math.ceil(MIN_FRAMES_BEFORE_STOP / simulator.frame_stride)  # in steps
     for step in tqdm(range(n_steps), disable=not progress, desc="GNS rollout", unit="step"):
         if checkpoint and torch.is_grad_enabled():
-            nxt = recompute_in_backward(simulator.step, window, particle_type, material, case, graph, use_reentrant=False)
+            nxt = recompute_in_backward(simulator.step, window, particle_type, material, constraints, graph, use_reentrant=False)
         else:
-            nxt = simulator.step(window, particle_type, material, case, graph)
+            nxt = simulator.step(window, particle_type, material, constraints, graph)
         frames.append(nxt)
         window = torch.cat([window[:, 1:], nxt[:, None]], dim=1)
         if (step + 1) % CHECK_EVERY == 0 or step + 1 == n_steps:
-            if _check(frames, case, step, stop_speed, min_frames):
+            if _check(frames, constraints, step, stop_speed, min_frames):
                 break
     return torch.stack(frames)
 
 
-def _check(frames, case: Case, step, stop_speed, min_frames) -> bool:
+def _check(frames, constraints: Constraints, step, stop_speed, min_frames) -> bool:
     """Raise on NaN; True when the flow has stopped (one host sync per CHECK_EVERY steps)."""
     recent = torch.stack(frames[-CHECK_EVERY - 1:]).detach()
-    soil = case.movable
+    soil = constraints.movable
     speed = (recent[1:, soil] - recent[:-1, soil]).norm(dim=-1).amax() if soil.any() else recent.new_zeros(())
     finite, fastest = bool(torch.isfinite(recent[-1]).all()), float(speed)
     if not finite:
@@ -88,19 +89,19 @@ def start_window(initial: np.ndarray, velocity: np.ndarray, history: int, step_d
     """[history, N, 2] float32 m: the window a rollout starts from, the scene at frame 0 (initial
     [N, 2] m) and before it each point moving at its frame-0 velocity ([N, 2] m/s), one model step
     (step_dt s) apart; a point at rest (zero velocity) is frame 0 held, as the scene at rest is.
-    Training draws the same windows (runout.gns.samples), so a rollout starts where it learned to."""
+    Training draws the same windows (runout.gns.windows), so a rollout starts where it learned to."""
     lag = step_dt * np.arange(history - 1, -1, -1, dtype=np.float64)  # s before frame 0: (history - 1) K dt, ..., 0
     window = np.asarray(initial, dtype=np.float64)[None] - lag[:, None, None] * np.asarray(velocity, dtype=np.float64)[None]
     return window.astype(np.float32)
 
 
-def material_tensor(simulator: Simulator, traj: Trajectory) -> torch.Tensor:
+def material_tensor(simulator: GraphNetworkSimulator, traj: Trajectory) -> torch.Tensor:
     """[N, k] material features of a trajectory, in the width the simulator expects."""
     return torch.from_numpy(traj.material_features(simulator.schema.material_width))
 
 
 def rollout_trajectory(
-    simulator: Simulator,
+    simulator: GraphNetworkSimulator,
     initial: Trajectory,
     n_frames: int,
     stop_speed: float | None = 0.05,
@@ -121,7 +122,7 @@ def rollout_trajectory(
 
 
 def rollout_trajectories(
-    simulator: Simulator,
+    simulator: GraphNetworkSimulator,
     initials: list[Trajectory],
     n_frames: int,
     stop_speed: float | None = 0.05,

@@ -16,7 +16,7 @@ import numpy as np
 import torch
 
 from runout.errors import InputError
-from runout.gns.schema import encode_materials_torch
+from runout.learned.materials import encode_materials
 from runout.inverse.loss import DataLoss
 from runout.inverse.memory import PeakMemory
 from runout.inverse.spec import FreeParameter
@@ -64,7 +64,7 @@ class InverseProblem:
     def features(self, values: torch.Tensor) -> torch.Tensor:
         """[N, k] per-point features from the free values [P] (degrees, kPa); differentiable."""
         table = self.table.index_put((self.rows, self.cols), values)
-        per_material = encode_materials_torch(table[:, 0], table[:, 1])[:, : self.feature_width]
+        per_material = encode_materials(table[:, 0], table[:, 1])[:, : self.feature_width]
         return per_material[self.material_id].to(self.dtype)
 
     def loss(self, values: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

@@ -17,7 +17,7 @@ from pathlib import Path
 from runout.errors import InputError
 from runout.reading import read_toml
 from runout.scene import MAX_STRENGTH, Scene, load_scene
-from runout.scene.validation import SMALLEST_SIZE
+from runout.scene.limits import SMALLEST_SIZE
 from runout.scene.files import check_keys
 
 

@@ -13,8 +13,7 @@ from pathlib import Path
 from runout.defaults import FLIP_WAVE, ROUGH
 from runout.errors import InputError
 from runout.reading import read_json, read_toml
-from runout.scene.model import Domain, Material, Region, Scene, TimeSpec
-from runout.scene.validation import validate_scene
+from runout.scene.model import Domain, Material, Region, Scene, TimeSpec, check_scene
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"  # the example scene files, shipped as package data
 
@@ -70,7 +69,7 @@ def _flip(table: dict, source: str) -> float | str:
 
 
 def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
-    """Build and validate a Scene from the dictionary form of a scene file."""
+    """Build and check a Scene from the dictionary form of a scene file."""
     check_keys(data, _TOP_KEYS, "top level", source)
     for required in ("domain", "materials", "regions"):
         if required not in data:
@@ -162,7 +161,7 @@ def scene_from_dict(data: dict, source: str = "<scene>") -> Scene:
             )
         )
     scene = Scene(domain, materials, tuple(regions), time, str(data.get("name", Path(source).stem)))
-    validate_scene(scene, source)
+    check_scene(scene, source)
     return scene
 
 
@@ -234,4 +233,4 @@ def save_scene(scene: Scene, path: str | Path) -> None:
     Path(path).write_text(scene_to_toml(scene))
 
 
-# ----------------------------------------------------------------------------- validation
+# ----------------------------------------------------------------------------- key checks

@@ -3,26 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from runout.defaults import PARTICLE_TYPE_KINEMATIC, PARTICLE_TYPE_SOIL
 from runout.scene.geometry import points_in_polygon
-
-if TYPE_CHECKING:
-    from runout.scene.model import Domain, Scene
-
-
-def lattice_points(domain: Domain) -> np.ndarray:
-    """Candidate point positions: centres of a regular sub-grid, points_per_cell per direction."""
-    s = domain.point_spacing
-    nx = int(round(domain.width / s))
-    ny = int(round(domain.height / s))
-    xs = (np.arange(nx) + 0.5) * s
-    ys = (np.arange(ny) + 0.5) * s
-    gx, gy = np.meshgrid(xs, ys, indexing="xy")
-    return np.column_stack([gx.ravel(), gy.ravel()])
+from runout.scene.model import Scene, lattice_points
 
 
 @dataclass

@@ -1,4 +1,4 @@
-"""Training samples: windows of `history` positions and the true positions after them, from a split file.
+"""Training windows: `history` positions and the true positions after them, from a split file.
 
 A window at frame stride K starting at frame t holds frames t, t + K, ..., t + (history - 1) K
 and its target is frame t + history K; every start frame t that fits is a window, so every
@@ -8,10 +8,8 @@ t = -(history - 1) K, with frame 0 standing for every frame before it: the MPM s
 every user's rollout starts (runout.gns.rollout). Points that move at frame 0 (family a's thrown
 blocks, up to 15 m/s: runout.trajectory.first_frame_velocity) stand before it where that
 velocity puts them, x(t) = x(0) + t v(0), as a rollout's start_window places them; held at
-frame 0 they would ask for a jump from standing still to full speed in one step. With `static_tail` F, a simulation's windows
-end F frames after its last frame in which a soil point moved faster than STILL_SPEED: the
-steps go to motion rather than to a deposit that has stopped, and F frames of it remain so the
-model still learns to keep a deposit still. A sample for n pushforward steps (runout.train)
+frame 0 they would ask for a jump from standing still to full speed in one step. A sample for
+n pushforward steps (runout.train)
 also holds the true frames t + (history + 1) K, ..., t + (history + n) K, the last of which
 is then its target, so its start t must leave room for them. All simulations of a split live
 on the training device; a batch picks windows uniformly over every (simulation, start frame)
@@ -31,14 +29,12 @@ from pathlib import Path
 
 import torch
 
-from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
+from runout.defaults import FRAME_DT
 from runout.errors import InputError
-from runout.gns.schema import HISTORY, FeatureSchema, material_names_for_width
+from runout.contract import HISTORY, material_names_for_width
+from runout.gns.schema import FeatureSchema
 from runout.simfiles import read_simulations
 from runout.trajectory import first_frame_velocity
-
-
-STILL_SPEED = 0.05  # m/s: soil slower than this has stopped (as the rollout's default --stop-speed)
 
 
 @dataclass
@@ -56,12 +52,12 @@ class TrainingBatch:
         return self.future.shape[1] - 1
 
 
-class Simulations:
+class TrainingWindows:
     """The simulations of one split file on `device`, sampled in windows at frame stride 1
     (with_stride: the same data at another stride), with 0 or more pushforward steps."""
 
     def __init__(self, path: str | Path, device: torch.device, history: int = HISTORY, material_names=None,
-                 rest_windows: bool = True, static_tail: int | None = None, frame_dt: float = FRAME_DT):
+                 rest_windows: bool = True, frame_dt: float = FRAME_DT):
         sims = read_simulations(path)
         widths = {0 if m is None else m.shape[1] for _, _, m in sims}
         if len(widths) != 1:
@@ -75,7 +71,6 @@ class Simulations:
             (torch.zeros((len(t), 0)) if m is None else torch.from_numpy(m)).to(device) for _, t, m in sims
         ]
         self.rest_windows = rest_windows
-        self.frame_dt = frame_dt  # s between the dataset's frames
         # m per dataset frame: each point's velocity at frame 0 (zero for points at rest), which
         # places it in the frames before frame 0 of a window from rest
         self.start_step = [
@@ -83,15 +78,7 @@ class Simulations:
                              * frame_dt).to(p) if p.shape[0] > 1 else torch.zeros_like(p[0])
             for p, t in zip(self.positions, self.particle_type)
         ]
-        self.static_tail = static_tail
-        self.last_moving = (None if static_tail is None else  # one pass over every frame, only when it is used
-                            [_last_moving_frame(p, t, STILL_SPEED * frame_dt) for p, t in zip(self.positions, self.particle_type)])
         self._index_windows(1)
-
-    def _usable_frames(self, sim: int) -> int:
-        """Frames of simulation `sim` that windows may reach (all, or up to static_tail past the flow's stop)."""
-        n = self.positions[sim].shape[0]
-        return n if self.static_tail is None else min(n, self.last_moving[sim] + self.static_tail + 1)
 
     @property
     def first_start(self) -> int:
@@ -125,11 +112,11 @@ class Simulations:
             span = (self.history + unroll) * self.stride  # frames from a window's first position to its target
             first = [0]
             for sim in range(len(self.positions)):
-                first.append(first[-1] + max(self._usable_frames(sim) - span - self.first_start, 0))
+                first.append(first[-1] + max(self.positions[sim].shape[0] - span - self.first_start, 0))
             self._first_window[unroll] = first
         return self._first_window[unroll]
 
-    def with_stride(self, stride: int) -> "Simulations":
+    def with_stride(self, stride: int) -> "TrainingWindows":
         """The same simulations (the same device tensors), sampled at frame stride `stride`."""
         if stride == self.stride:
             return self
@@ -232,14 +219,3 @@ def mirrored(batch: TrainingBatch, x_range, share: float, generator: torch.Gener
         return torch.stack([x, positions[..., 1]], dim=-1)
 
     return replace(batch, window=reflect(batch.window), future=reflect(batch.future))
-
-
-def _last_moving_frame(positions: torch.Tensor, particle_type: torch.Tensor, still: float) -> int:
-    """The last frame at which some soil point moved more than `still` (m per frame) since
-    the frame before (0 when nothing ever moves)."""
-    soil = particle_type != PARTICLE_TYPE_KINEMATIC
-    if positions.shape[0] < 2 or not bool(soil.any()):
-        return 0
-    fastest = (positions[1:, soil] - positions[:-1, soil]).norm(dim=-1).amax(dim=1)  # [frames - 1]
-    moving = torch.nonzero(fastest > still).flatten()
-    return int(moving[-1]) + 1 if len(moving) else 0

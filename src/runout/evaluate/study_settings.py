@@ -1,6 +1,7 @@
-"""The cases the evaluation studies run, torch-free, so the command line derives its options
-from them without loading the engines: ColumnCase and ColumnGrid (section 5.1.1's columns),
-PAPER_CASE (the diagnostics' column) and SensitivityConfig (the data-size study).
+"""The settings of the evaluation studies, torch-free, so the command line derives its options
+from them without loading the engines: ColumnGrid and its ColumnCase (section 5.1.1's columns:
+a case is one named run of a study, as a check is one of `runout validate`), PAPER_CASE (the
+diagnostics' column) and SensitivityConfig (the data-size study).
 """
 
 from __future__ import annotations
