@@ -1,4 +1,5 @@
-"""Figures of an inverse run: loss history, parameter history, predicted deposit against the target."""
+"""Figures of an inverse run: loss history, parameter history, predicted deposit against the target,
+the loss along each parameter through the optimum with its interval."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from matplotlib.ticker import MaxNLocator
 
 from runout.errors import InputError
 from runout.inverse.history import History
+from runout.inverse.intervals import Intervals
 from runout.inverse.optimise import StartResult, read_deposit
 
 
@@ -124,6 +126,37 @@ def draw_starts(results: list[StartResult], path: Path) -> None:
             ax.axhline(true_values[k], color="tab:red", ls=":", label="true")
         ax.set(xlabel="iteration", ylabel=f"{p.name} ({p.unit})", title=p.name)
     axes[0, 0].legend(fontsize=7)
+    _save(fig, path)
+
+
+def draw_profile(profiles, intervals: Intervals, gauss_newton_loss, loss: float, true_values: list[float] | None,
+                 path: Path) -> None:
+    """Per free parameter, the loss along it through the optimum (forward runs, the others held
+    there) above the optimum's, the Gauss-Newton quadratic of the intervals, and the interval.
+
+    profiles: runout.inverse.uncertainty.Profile per parameter; gauss_newton_loss(k, δ [K]) ->
+    [K] m², the linearised model's loss with parameter k moved by δ; loss: m² at the optimum."""
+    level = f"{100 * intervals.confidence:g} %"
+    fig, axes = _figure(1, len(profiles), figsize=(4.4 * len(profiles), 3.8))
+    for k, (p, profile, ax) in enumerate(zip(intervals.free, profiles, axes[0])):
+        estimate = intervals.estimate[k]
+        fine = np.linspace(profile.values[0], profile.values[-1], 200)
+        ax.plot(fine, gauss_newton_loss(k, fine - estimate) - loss, "--", color="tab:red", label="Gauss-Newton quadratic")
+        ax.plot(profile.values, profile.losses - loss, "o-", color="k", ms=4, lw=1, label="loss (MPM / model runs)")
+        if np.isfinite(intervals.lower[k]):
+            ax.axvspan(intervals.lower[k], intervals.upper[k], color="tab:blue", alpha=0.15, label=f"{level} interval")
+        ax.axvline(estimate, color="tab:blue", lw=1, label="estimate")
+        if true_values is not None:
+            ax.axvline(true_values[k], color="tab:green", ls=":", lw=1.5, label="true")
+        for bound in (p.lower, p.upper):
+            if profile.values[0] <= bound <= profile.values[-1]:
+                ax.axvline(bound, color="0.5", lw=0.8, ls="--")
+        ax.set_xlim(profile.values[0], profile.values[-1])
+        ax.set_ylim(top=ax.get_ylim()[1] * 1.45)  # room for the legend above the curves
+        ax.set(xlabel=f"{p.name} ({p.unit})", ylabel="loss - loss at the estimate (m$^2$)",
+               title=f"{p.name}: {intervals.status[k]}" if intervals.status[k] != "interior" else p.name)
+        ax.title.set_fontsize(9)
+    axes[0, 0].legend(fontsize=7, loc="upper center", ncol=2)
     _save(fig, path)
 
 
