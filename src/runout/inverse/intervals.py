@@ -184,9 +184,10 @@ def _plus_minus(value: float, half: float, joint: str = " ± ") -> str:
     return f"{value:.{digits}f}{joint}{second:.{digits}f}"
 
 
-def to_json(intervals: Intervals, loss: float, step: float, true_values: list[float] | None) -> dict:
+def to_json(intervals: Intervals, loss: float, jacobian: str, true_values: list[float] | None) -> dict:
     """uncertainty.json: each parameter's estimate, standard error and interval (null where not
-    determined), the correlation and covariance, and the statistics they come from."""
+    determined), the correlation and covariance, and the statistics they come from; `jacobian`
+    says how J was taken."""
     def finite(x):
         return float(x) if np.isfinite(x) else None
 
@@ -198,8 +199,7 @@ def to_json(intervals: Intervals, loss: float, step: float, true_values: list[fl
         "loss": loss, "n": intervals.n, "p": p, "degrees_of_freedom": intervals.degrees_of_freedom,
         "s2": intervals.s2, "s2_unit": "m^2 per observed value", "t_quantile": intervals.t_quantile,
         "condition_number": finite(intervals.condition),
-        "jacobian": {"by": "central differences of the engine's forward run (one-sided at a bound)",
-                     "step_of_bounds": step},
+        "jacobian": jacobian,
         "parameters": [
             {"name": q.name, "unit": q.unit, "estimate": float(intervals.estimate[k]),
              "standard_error": finite(intervals.standard_error[k]),

@@ -99,10 +99,9 @@ def invert(
     if starts > 1:
         _write_starts(inversion, Path(out_dir))
     if uncertainty:
-        p = len(spec.free)
         if log:
-            log(f"intervals at {inversion.best.out_dir}'s answer: {2 * p} runs for the Jacobian, "
-                f"{PROFILE_POINTS * p} along the parameters")
+            log(f"intervals at the answer in {inversion.best.out_dir}: the Jacobian, then {PROFILE_POINTS * len(spec.free)} runs "
+                "along the parameters")
         inversion.intervals = estimate_uncertainty(forward, spec.free, inversion.best.values, confidence, fd_step,
                                                    Path(out_dir), observation.true_values, progress)
     return inversion

@@ -3,12 +3,14 @@ and the loss along each parameter through the optimum, written as uncertainty.js
 profile.png.
 
 The intervals need the Jacobian J [n, P] of the loss's residuals (one per observed coordinate
-or thickness bin) with respect to the free parameters at the optimum. Reverse-mode AD, which
-drives the optimiser, gives one row of J per backward pass, n of them (672 on the small dam);
-the Warp kernels have no forward mode. So each column is a central difference of the engine's
-own forward run, the run an evaluation makes without its backward pass: 2P runs `step` of the
-bounds apart (one-sided at a bound), one batch on mpm-fd. tests/test_invert_uncertainty.py
-checks these columns against reverse-mode AD through mpm-ad and a learned engine.
+or thickness bin) with respect to the free parameters at the optimum, column by column: how
+the predicted positions move with each parameter, carried through the loss's residuals by
+forward-mode AD. Reverse-mode AD, which drives the optimiser, would give J a row at a time,
+n backward passes (672 on the small dam). A learned engine's rollout is plain torch, so its
+columns come by forward-mode AD (P passes, each about one rollout), exact like its gradient.
+The MPM's Warp kernels have only reverse adjoints, so on mpm-ad and mpm-fd each column is a
+central difference of the MPM run itself: 2P runs `step` of the bounds apart (one-sided at a
+bound), one batch on mpm-fd. tests/test_invert_uncertainty.py checks both against reverse-mode AD.
 """
 
 from __future__ import annotations
@@ -20,11 +22,14 @@ from typing import Protocol
 
 import numpy as np
 import torch
+import torch.autograd.forward_ad as fwAD
+from tqdm.auto import tqdm
 
 from runout.inverse.figures import draw_profile
 from runout.inverse.intervals import Intervals, gauss_newton, to_json
 from runout.inverse.loss import DataLoss
 from runout.inverse.optimise import central_stencil, spans
+from runout.inverse.problem import InverseProblem
 from runout.inverse.spec import FreeParameter
 from runout.outputs import write_atomic
 
@@ -53,6 +58,7 @@ class Linearisation:
     observed: np.ndarray  # [n] bool: the residuals that count as observations (DataLoss.observed)
     loss: float  # m²
     divisor: int  # loss = Σ r² / divisor
+    how: str  # how the Jacobian was taken
 
     def gauss_newton_loss(self, k: int, delta: np.ndarray) -> np.ndarray:
         """The loss (m²) of the linearised model |r + J_k δ|² / divisor, parameter k moved by δ [K]."""
@@ -68,17 +74,50 @@ class Profile:
 
 def linearise(forward: Forward, free: tuple[FreeParameter, ...], values: np.ndarray, step: float,
               progress: bool = False) -> Linearisation:
-    """Residuals at `values` and their Jacobian by central differences `step` of the bounds wide."""
-    stencil, spacing = central_stencil(free, values, step)
-    positions = forward.predict(stencil, progress)
+    """Residuals at `values` and their Jacobian (module docstring)."""
+    centre, tangents, how = position_tangents(forward, free, values, step, progress)
     loss = forward.data_loss
-    device = loss.target.device
-    residuals = np.stack([loss.residuals(torch.as_tensor(x, device=device)).cpu().numpy() for x in positions])
-    jacobian = (residuals[2::2] - residuals[1::2]).T / (spacing * spans(free))  # [n, P]
-    centre = torch.as_tensor(positions[0], device=device)
-    observed = loss.observed(centre).cpu().numpy() | np.any(jacobian != 0, axis=1)
-    return Linearisation(np.asarray(values, dtype=float), residuals[0], jacobian, observed, float(loss(centre)),
-                         loss.divisor)
+    columns = []
+    with fwAD.dual_level():
+        for tangent in tangents:  # the residuals are linear (positions) or piecewise linear (thickness) in them
+            columns.append(fwAD.unpack_dual(loss.residuals(fwAD.make_dual(centre, tangent))).tangent)
+    with torch.no_grad():
+        residuals = loss.residuals(centre).cpu().numpy()
+        jacobian = torch.stack(columns, dim=1).cpu().numpy()  # [n, P] m per degree or kPa
+        observed = loss.observed(centre).cpu().numpy() | np.any(jacobian != 0, axis=1)
+        value = float(loss(centre))
+    return Linearisation(np.asarray(values, dtype=float), residuals, jacobian, observed, value, loss.divisor, how)
+
+
+def position_tangents(forward: Forward, free: tuple[FreeParameter, ...], values: np.ndarray, step: float,
+                      progress: bool = False) -> tuple[torch.Tensor, torch.Tensor, str]:
+    """(positions [F, N, 2] m at `values`, their derivatives [P, F, N, 2] m per degree or kPa, how
+    they were taken): forward-mode AD through a learned engine's rollout, else (or should it give
+    a value that is not finite) central differences of the forward run."""
+    device = forward.data_loss.target.device
+    if isinstance(forward, InverseProblem):
+        centre, tangents = _forward_mode(forward, values, progress)
+        if torch.isfinite(tangents).all():
+            return centre, tangents, "forward-mode AD through the rollout"
+    stencil, spacing = central_stencil(free, values, step)
+    positions = torch.as_tensor(forward.predict(stencil, progress), device=device)
+    widths = torch.as_tensor(spacing * spans(free), device=device)
+    tangents = (positions[2::2] - positions[1::2]) / widths[:, None, None, None]
+    return positions[0], tangents, f"central differences of the forward run, {step:g} of the bounds (one-sided at a bound)"
+
+
+def _forward_mode(problem: InverseProblem, values: np.ndarray, progress: bool) -> tuple[torch.Tensor, torch.Tensor]:
+    """The rollout's positions and their derivative along each free parameter, one pass each."""
+    centre, tangents = None, []
+    with torch.no_grad(), fwAD.dual_level():  # no_grad stops reverse-mode taping only
+        for k in tqdm(range(len(values)), desc="rollouts", unit="rollout", disable=not progress):
+            v = torch.tensor(np.asarray(values, dtype=np.float64), device=problem.device)
+            direction = torch.zeros_like(v)
+            direction[k] = 1.0
+            primal, tangent = fwAD.unpack_dual(problem.loss(fwAD.make_dual(v, direction))[1].to(torch.float64))
+            centre = primal
+            tangents.append(torch.zeros_like(primal) if tangent is None else tangent)
+    return centre, torch.stack(tangents)
 
 
 def profiles(forward: Forward, intervals: Intervals, lin: Linearisation, step: float,
@@ -113,7 +152,7 @@ def estimate_uncertainty(forward: Forward, free: tuple[FreeParameter, ...], valu
     lin = linearise(forward, free, values, step, progress)
     intervals = gauss_newton(lin.residuals[lin.observed], lin.jacobian[lin.observed], free, lin.values, confidence)
     drawn = profiles(forward, intervals, lin, step, progress)
-    record = to_json(intervals, lin.loss, step, true_values)
+    record = to_json(intervals, lin.loss, lin.how, true_values)
     record["profile"] = [{"name": p.name, "unit": p.unit, "values": d.values.tolist(), "losses": d.losses.tolist()}
                          for p, d in zip(free, drawn)]
     write_atomic(Path(out_dir) / UNCERTAINTY_JSON, json.dumps(record, indent=1))
