@@ -137,27 +137,40 @@ def draw_profile(profiles, intervals: Intervals, gauss_newton_loss, loss: float,
     profiles: runout.inverse.uncertainty.Profile per parameter; gauss_newton_loss(k, δ [K]) ->
     [K] m², the linearised model's loss with parameter k moved by δ; loss: m² at the optimum."""
     level = f"{100 * intervals.confidence:g} %"
-    fig, axes = _figure(1, len(profiles), figsize=(4.4 * len(profiles), 3.8))
+    fig, axes = _figure(1, len(profiles), figsize=(max(4.4 * len(profiles), 7.0), 4.2))
     for k, (p, profile, ax) in enumerate(zip(intervals.free, profiles, axes[0])):
         estimate = intervals.estimate[k]
         fine = np.linspace(profile.values[0], profile.values[-1], 200)
         ax.plot(fine, gauss_newton_loss(k, fine - estimate) - loss, "--", color="tab:red", label="Gauss-Newton quadratic")
-        ax.plot(profile.values, profile.losses - loss, "o-", color="k", ms=4, lw=1, label="loss (MPM / model runs)")
+        ax.plot(profile.values, profile.losses - loss, "o-", color="k", ms=4, lw=1, label="loss of forward runs")
         if np.isfinite(intervals.lower[k]):
             ax.axvspan(intervals.lower[k], intervals.upper[k], color="tab:blue", alpha=0.15, label=f"{level} interval")
         ax.axvline(estimate, color="tab:blue", lw=1, label="estimate")
+        title = p.name if intervals.status[k] == "interior" else f"{p.name}: {intervals.status[k]}"
         if true_values is not None:
             ax.axvline(true_values[k], color="tab:green", ls=":", lw=1.5, label="true")
+            title += _beyond(true_values[k], p.unit, profile)
         for bound in (p.lower, p.upper):
             if profile.values[0] <= bound <= profile.values[-1]:
                 ax.axvline(bound, color="0.5", lw=0.8, ls="--")
         ax.set_xlim(profile.values[0], profile.values[-1])
-        ax.set_ylim(top=ax.get_ylim()[1] * 1.45)  # room for the legend above the curves
-        ax.set(xlabel=f"{p.name} ({p.unit})", ylabel="loss - loss at the estimate (m$^2$)",
-               title=f"{p.name}: {intervals.status[k]}" if intervals.status[k] != "interior" else p.name)
+        ax.set(xlabel=f"{p.name} ({p.unit})", ylabel="loss - loss at the estimate (m$^2$)", title=title)
         ax.title.set_fontsize(9)
-    axes[0, 0].legend(fontsize=7, loc="upper center", ncol=2)
-    _save(fig, path)
+    shown = {}  # one legend for all panels: each label once
+    for ax in axes[0]:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            shown.setdefault(label, handle)
+    fig.legend(list(shown.values()), list(shown), loc="lower center", ncol=len(shown), fontsize=8)
+    _save(fig, path, rect=(0.0, 0.08, 1.0, 1.0))
+
+
+def _beyond(value: float, unit: str, profile) -> str:
+    """Words for a title when the true value lies beyond the profile drawn."""
+    if value < profile.values[0]:
+        return f" (true {value:.4g} {unit}: left of the plot)"
+    if value > profile.values[-1]:
+        return f" (true {value:.4g} {unit}: right of the plot)"
+    return ""
 
 
 def _figure(rows: int, cols: int, figsize: tuple[float, float]):
@@ -165,9 +178,10 @@ def _figure(rows: int, cols: int, figsize: tuple[float, float]):
     return fig, fig.subplots(rows, cols, squeeze=False)
 
 
-def _save(fig: Figure, path: Path) -> None:
+def _save(fig: Figure, path: Path, rect: tuple[float, float, float, float] | None = None) -> None:
+    """rect: the part of the figure the axes fill (room for a figure legend)."""
     for ax in fig.axes:
         if ax.get_xlabel() == "iteration":
             ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    fig.tight_layout()
+    fig.tight_layout(rect=rect)
     fig.savefig(path, dpi=130)
