@@ -252,6 +252,14 @@ def test_the_command_prints_intervals_and_a_resumed_run_gives_them_without_new_e
     assert again["parameters"][0]["interval"][1] > c["interval"][1]  # 95 % is wider than 90 %
 
 
+def test_with_several_starts_the_intervals_are_the_best_starts(tiny, tmp_path):
+    result = invert(tiny / "spec.toml", tmp_path / "out", engine="mpm-ad", starts=2, uncertainty=True)
+    record = json.loads((tmp_path / "out" / UNCERTAINTY_JSON).read_text())
+    assert record["answer_of"] == result.best.out_dir.name
+    assert [p["estimate"] for p in record["parameters"]] == result.best.values.tolist()
+    assert (tmp_path / "out" / PROFILE_PNG).is_file() and not (tmp_path / "out" / "start_00" / UNCERTAINTY_JSON).exists()
+
+
 @pytest.mark.parametrize("value", ["0", "1", "1.5", "-0.2", "nan"])
 def test_a_bad_confidence_is_refused_and_nothing_is_written(tiny, tmp_path, capsys, value):
     out = tmp_path / "out"

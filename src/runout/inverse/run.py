@@ -100,10 +100,12 @@ def invert(
         _write_starts(inversion, Path(out_dir))
     if uncertainty:
         if log:
-            log(f"intervals at the answer in {inversion.best.out_dir}: the Jacobian, then {PROFILE_POINTS * len(spec.free)} runs "
+            log(f"intervals at the answer of {inversion.best.out_dir}: the Jacobian, then {PROFILE_POINTS * len(spec.free)} runs "
                 "along the parameters")
-        inversion.intervals = estimate_uncertainty(forward, spec.free, inversion.best.values, confidence, fd_step,
-                                                   Path(out_dir), observation.true_values, progress)
+        best = inversion.best
+        inversion.intervals = estimate_uncertainty(forward, spec.free, best.values, confidence, fd_step, Path(out_dir),
+                                                   observation.true_values, progress,
+                                                   best.out_dir.relative_to(out_dir).as_posix())
     return inversion
 
 

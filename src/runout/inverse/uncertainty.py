@@ -147,12 +147,13 @@ def profiles(forward: Forward, intervals: Intervals, lin: Linearisation, step: f
 
 def estimate_uncertainty(forward: Forward, free: tuple[FreeParameter, ...], values: np.ndarray, confidence: float,
                          step: float, out_dir: Path, true_values: list[float] | None = None,
-                         progress: bool = False) -> Intervals:
-    """Intervals at the optimum `values` [P]; writes out_dir/uncertainty.json and profile.png."""
+                         progress: bool = False, answer_of: str = ".") -> Intervals:
+    """Intervals at the optimum `values` [P]; writes out_dir/uncertainty.json and profile.png.
+    answer_of: the folder (relative to out_dir) of the run whose answer `values` is."""
     lin = linearise(forward, free, values, step, progress)
     intervals = gauss_newton(lin.residuals[lin.observed], lin.jacobian[lin.observed], free, lin.values, confidence)
     drawn = profiles(forward, intervals, lin, step, progress)
-    record = to_json(intervals, lin.loss, lin.how, true_values)
+    record = {"answer_of": answer_of, **to_json(intervals, lin.loss, lin.how, true_values)}
     record["profile"] = [{"name": p.name, "unit": p.unit, "values": d.values.tolist(), "losses": d.losses.tolist()}
                          for p, d in zip(free, drawn)]
     write_atomic(Path(out_dir) / UNCERTAINTY_JSON, json.dumps(record, indent=1))
