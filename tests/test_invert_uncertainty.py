@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 import scipy.stats
 import torch
+import torch.autograd.forward_ad as fwAD
 
 from runout.errors import InputError
 from runout.cli import main
@@ -126,6 +127,12 @@ def test_the_loss_is_the_sum_of_its_squared_residuals(kind):
     # every coordinate of the 25 weighted points in 2 frames; or, of 20 bins 5 m wide per frame, the
     # ten that hold soil (centres 2.5-47.5 m), not the ten empty ones beyond
     assert (r.numel(), observed) == ((100, 100) if kind == "positions" else (40, 20))
+    direction = torch.tensor(rng.normal(size=target.shape))  # the Jacobian's path: forward-mode AD through them
+    with fwAD.dual_level():
+        derivative = fwAD.unpack_dual(loss.residuals(fwAD.make_dual(predicted, direction))).tangent
+    h = 1e-6  # m; both kinds are piecewise linear in the positions
+    secant = (loss.residuals(predicted + h * direction) - loss.residuals(predicted - h * direction)) / (2 * h)
+    np.testing.assert_allclose(derivative.numpy(), secant.numpy(), atol=1e-6)
 
 
 def linear_forward(free, truth, rng, noise):
