@@ -27,7 +27,7 @@ from runout.inverse.forward import inverse_problem
 from runout.inverse.history import HISTORY_JSON, RunInfo
 from runout.inverse.memory import PeakMemory
 from runout.inverse.mpm_fd import MpmFiniteDifference
-from runout.inverse.optimise import run_starts, spread
+from runout.inverse.optimise import central_stencil, run_starts, spread
 from runout.inverse.spec import FreeParameter, OptimiserSpec
 from runout.scene import fill_points, save_scene, scene_from_dict
 from runout.trajectory import save_trajectory, trajectory_for_scene
@@ -443,7 +443,7 @@ def test_mpm_fd_runs_the_stencil_as_one_batch(toy, monkeypatch):
     spec_path.write_text(f'scene = "toy.toml"\n{params}\n')
     spec = load_inverse_spec(spec_path)
     engine = MpmFiniteDifference(spec, load_observation(spec), step=0.05)
-    stencil, spacing = engine.stencil(np.array([100.0, 20.0]))  # c at its upper bound
+    stencil, spacing = central_stencil(spec.free, np.array([100.0, 20.0]), engine.step)  # c at its upper bound
     assert stencil[:, 0].max() == 100.0 and spacing[0] == pytest.approx(0.05)
 
     batches = []
@@ -457,7 +457,7 @@ def test_mpm_fd_runs_the_stencil_as_one_batch(toy, monkeypatch):
     values = np.array([50.0, 20.0])
     ev = engine(values)
     assert batches == [5]
-    alone = [engine._loss(real([spec.scene_at(v)], progress=False, frames=9)[0].positions)
+    alone = [float(engine.data_loss(torch.from_numpy(real([spec.scene_at(v)], progress=False, frames=9)[0].positions[[8]])))
              for v in (values, values + [5.0, 0.0], values - [5.0, 0.0])]
     assert ev.loss == pytest.approx(alone[0], rel=1e-6)
     assert ev.gradient[0] == pytest.approx((alone[1] - alone[2]) / 10.0, rel=1e-4, abs=1e-9)

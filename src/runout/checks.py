@@ -31,23 +31,23 @@ def show(value) -> str:
     return repr(value)
 
 
-def span(lo: float, hi: float, unit: str = "", lo_open: bool = False) -> str:
-    """'(0, 10] s', '[0, inf)' and the like."""
-    return f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi == math.inf else ']'}{unit}"
+def span(lo: float, hi: float, unit: str = "", lo_open: bool = False, hi_open: bool = False) -> str:
+    """'(0, 10] s', '[0, inf)', '(0, 1)' and the like."""
+    return f"{'(' if lo_open else '['}{lo:g}, {hi:g}{')' if hi_open or hi == math.inf else ']'}{unit}"
 
 
 def number(value, field: str, source, lo: float = -math.inf, hi: float = math.inf, unit: str = "",
-           lo_open: bool = False, whole: bool = False, note: str = ""):
+           lo_open: bool = False, whole: bool = False, note: str = "", hi_open: bool = False):
     """`value` when it is a finite (whole, if asked) number in the range, else InputError
     '{source}: {field} = {value} is outside the allowed range [lo, hi] unit ({note}).'
-    (source None: an option, which the field names)."""
+    (source None: an option, which the field names; lo_open, hi_open: the end is excluded)."""
     where = f"{source}: " if source is not None else ""
-    allowed = span(lo, hi, unit, lo_open) + (f" ({note})" if note else "")
+    allowed = span(lo, hi, unit, lo_open, hi_open) + (f" ({note})" if note else "")
     kinds = (int, np.integer) if whole else (int, float, np.integer, np.floating)
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, kinds) or not math.isfinite(value):
         kind = "whole" if whole else "finite"
         raise InputError(f"{where}{field} = {show(value)} must be a {kind} number in {allowed}.")
-    if value < lo or value > hi or (lo_open and value == lo):
+    if value < lo or value > hi or (lo_open and value == lo) or (hi_open and value == hi):
         raise InputError(f"{where}{field} = {show(value)} is outside the allowed range {allowed}.")
     if lo_open and lo == 0 and value < SMALLEST_SIZE:
         raise InputError(f"{where}{field} = {show(value)} is outside the allowed range {allowed}: a positive size is "

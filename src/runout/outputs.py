@@ -72,7 +72,7 @@ KNOWN = {
     "generate": ("generate.json", "scenes", "parts", "train.npz", "valid.npz", "test.npz", "metadata.json"),
     "train": ("checkpoint.pt", "best.pt", "log.jsonl", "tensorboard"),
     "invert": ("history.json", "history.csv", "loss.png", "parameters.png", "deposit.png", "deposits",
-               "start_[0-9][0-9]", "starts.json", "starts.csv", "starts.png"),
+               "start_[0-9][0-9]", "starts.json", "starts.csv", "starts.png", "uncertainty.json", "profile.png"),
     "evaluate": ("columns", "slope", "diagnostics", "inverse", "sensitivity"),
     "hazard": ("hazard.json", "parts", "realisations.csv", "realisations.json", "exceedance.csv", "runout_cdf.csv",
                "summary.json", "exceedance.png", "runouts.png"),

@@ -1,4 +1,5 @@
-"""Figures of an inverse run: loss history, parameter history, predicted deposit against the target."""
+"""Figures of an inverse run: loss history, parameter history, predicted deposit against the target,
+the loss along each parameter through the optimum with its interval."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from matplotlib.ticker import MaxNLocator
 
 from runout.errors import InputError
 from runout.inverse.history import History
+from runout.inverse.intervals import Intervals
 from runout.inverse.optimise import StartResult, read_deposit
 
 
@@ -127,14 +129,59 @@ def draw_starts(results: list[StartResult], path: Path) -> None:
     _save(fig, path)
 
 
+def draw_profile(profiles, intervals: Intervals, gauss_newton_loss, loss: float, true_values: list[float] | None,
+                 path: Path) -> None:
+    """Per free parameter, the loss along it through the optimum (forward runs, the others held
+    there) above the optimum's, the Gauss-Newton quadratic of the intervals, and the interval.
+
+    profiles: runout.inverse.uncertainty.Profile per parameter; gauss_newton_loss(k, δ [K]) ->
+    [K] m², the linearised model's loss with parameter k moved by δ; loss: m² at the optimum."""
+    level = f"{100 * intervals.confidence:g} %"
+    fig, axes = _figure(1, len(profiles), figsize=(max(4.4 * len(profiles), 7.0), 4.2))
+    for k, (p, profile, ax) in enumerate(zip(intervals.free, profiles, axes[0])):
+        estimate = intervals.estimate[k]
+        fine = np.linspace(profile.values[0], profile.values[-1], 200)
+        ax.plot(fine, gauss_newton_loss(k, fine - estimate) - loss, "--", color="tab:red", label="Gauss-Newton quadratic")
+        ax.plot(profile.values, profile.losses - loss, "o-", color="k", ms=4, lw=1, label="loss of forward runs")
+        if np.isfinite(intervals.lower[k]):
+            ax.axvspan(intervals.lower[k], intervals.upper[k], color="tab:blue", alpha=0.15, label=f"{level} interval")
+        ax.axvline(estimate, color="tab:blue", lw=1, label="estimate")
+        title = p.name if intervals.status[k] == "interior" else f"{p.name}: {intervals.status[k]}"
+        if true_values is not None:
+            ax.axvline(true_values[k], color="tab:green", ls=":", lw=1.5, label="true")
+            title += _beyond(true_values[k], p.unit, profile)
+        for bound in (p.lower, p.upper):
+            if profile.values[0] <= bound <= profile.values[-1]:
+                ax.axvline(bound, color="0.5", lw=0.8, ls="--")
+        ax.set_xlim(profile.values[0], profile.values[-1])
+        ax.set(xlabel=f"{p.name} ({p.unit})", ylabel="loss - loss at the estimate (m$^2$)", title=title)
+        ax.title.set_fontsize(9)
+    shown = {}  # one legend for all panels: each label once
+    for ax in axes[0]:
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            shown.setdefault(label, handle)
+    fig.legend(list(shown.values()), list(shown), loc="lower center", ncol=len(shown), fontsize=8)
+    _save(fig, path, rect=(0.0, 0.08, 1.0, 1.0))
+
+
+def _beyond(value: float, unit: str, profile) -> str:
+    """Words for a title when the true value lies beyond the profile drawn."""
+    if value < profile.values[0]:
+        return f" (true {value:.4g} {unit}: left of the plot)"
+    if value > profile.values[-1]:
+        return f" (true {value:.4g} {unit}: right of the plot)"
+    return ""
+
+
 def _figure(rows: int, cols: int, figsize: tuple[float, float]):
     fig = Figure(figsize=figsize)
     return fig, fig.subplots(rows, cols, squeeze=False)
 
 
-def _save(fig: Figure, path: Path) -> None:
+def _save(fig: Figure, path: Path, rect: tuple[float, float, float, float] | None = None) -> None:
+    """rect: the part of the figure the axes fill (room for a figure legend)."""
     for ax in fig.axes:
         if ax.get_xlabel() == "iteration":
             ax.xaxis.set_major_locator(MaxNLocator(integer=True))
-    fig.tight_layout()
+    fig.tight_layout(rect=rect)
     fig.savefig(path, dpi=130)

@@ -67,8 +67,36 @@ class DataLoss:
     def __call__(self, predicted: torch.Tensor) -> torch.Tensor:
         if self.kind == "positions":
             return weighted_mse(predicted, self.target, self.weights)
-        profile = thickness_profile(predicted[..., 0].to(self.target.dtype), self.area, self.x0, self.width, self.bins)
-        return (profile - self.target_profile).square().mean()
+        return (self._profile(predicted) - self.target_profile).square().mean()
+
+    def residuals(self, predicted: torch.Tensor) -> torch.Tensor:
+        """[n] the loss as residuals (m), loss = Σ r² / self.divisor: "positions": per frame, point
+        of weight w > 0 and coordinate, √(w / w̄) (p̂ − p), w̄ the mean of those weights (so with
+        uniform weights the residual is the coordinate's error); "thickness": t̂ − t per frame and
+        bin. The statistics of runout.inverse.intervals read them as independent observations."""
+        if self.kind == "positions":
+            counted = self.weights > 0
+            scale = (self.weights[counted] / self.weights[counted].mean()).sqrt()
+            error = predicted.to(self.target.dtype)[:, counted] - self.target[:, counted]  # [F, N_w, 2] m
+            return (error * scale[None, :, None]).reshape(-1)
+        return (self._profile(predicted) - self.target_profile).reshape(-1)
+
+    @property
+    def divisor(self) -> int:
+        """Σ r² / loss: frames x weighted points, or frames x bins."""
+        frames = self.target.shape[0]
+        return frames * (int((self.weights > 0).sum()) if self.kind == "positions" else self.bins)
+
+    def observed(self, predicted: torch.Tensor) -> torch.Tensor:
+        """[n] bool: the residuals that are observations. Every coordinate of a weighted point is;
+        a thickness bin is where the target or the prediction holds soil (an empty bin far from
+        the deposit stays empty whatever the strengths)."""
+        if self.kind == "positions":
+            return torch.ones(self.divisor * 2, dtype=torch.bool, device=self.target.device)
+        return ((self._profile(predicted) > 0) | (self.target_profile > 0)).reshape(-1)
+
+    def _profile(self, predicted: torch.Tensor) -> torch.Tensor:
+        return thickness_profile(predicted[..., 0].to(self.target.dtype), self.area, self.x0, self.width, self.bins)
 
 
 def data_loss(loss: LossSpec, target: np.ndarray, weights: np.ndarray, spacing: float, domain_width: float,

@@ -9,9 +9,9 @@ moves phi and c.
 
 from __future__ import annotations
 
-
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from runout.errors import InputError, RunFailed
 from runout.inverse.observation import Observation
@@ -54,10 +54,21 @@ class MpmAutodiff:
                             f"({evaluation.gradient.tolist()}); use --engine mpm-fd.")
         return evaluation
 
+    def predict(self, values: np.ndarray, progress: bool = False) -> np.ndarray:
+        """[K, F, N, 2] positions (m) at the observed frames for each row of values [K, P]
+        (degrees, kPa): the same MPM run as an evaluation's, forward only."""
+        with torch.no_grad():
+            runs = [self._positions(torch.tensor(v, dtype=torch.float64, device=self.device))
+                    for v in tqdm(np.asarray(values), desc="MPM runs", unit="run", disable=not progress)]
+        return torch.stack(runs).cpu().numpy()
+
     def _loss(self, v: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        table = self.table.index_put((self.rows, self.cols), v)
-        predicted = self.model(table[:, 0], table[:, 1])
+        predicted = self._positions(v)
         return self.data_loss(predicted), predicted
+
+    def _positions(self, v: torch.Tensor) -> torch.Tensor:
+        table = self.table.index_put((self.rows, self.cols), v)
+        return self.model(table[:, 0], table[:, 1])
 
 
 def check_ad_budget(spec: InverseSpec, observation: Observation, device: str) -> None:

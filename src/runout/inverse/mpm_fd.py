@@ -17,7 +17,7 @@ import torch
 from runout import checks
 from runout.inverse.memory import PeakMemory
 from runout.inverse.observation import Observation
-from runout.inverse.optimise import spans, to_physical
+from runout.inverse.optimise import central_stencil, spans
 from runout.inverse.loss import spec_loss
 from runout.inverse.problem import Evaluation
 from runout.inverse.spec import InverseSpec
@@ -51,30 +51,13 @@ class MpmFiniteDifference:
         self.backend = backend
         self.data_loss = spec_loss(spec, observation)
 
-    def stencil(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """([2P + 1, P] physical values: centre, then below/above per parameter; [P] spacing in u)."""
-        u = np.array([p.normalise(v) for p, v in zip(self.free, values)])
-        points = [u]
-        spacing = np.empty(len(u))
-        for k in range(len(u)):
-            below, above = u.copy(), u.copy()
-            below[k] = max(u[k] - self.step, 0.0)
-            above[k] = min(u[k] + self.step, 1.0)
-            points += [below, above]
-            spacing[k] = above[k] - below[k]
-        return np.array([to_physical(self.free, x) for x in points]), spacing
-
     def __call__(self, values: np.ndarray) -> Evaluation:
-        from runout.mpm import simulate  # the MPM is only needed by this engine
-
-        stencil, spacing = self.stencil(values)
-        scenes = [self.spec.scene_at(v) for v in stencil]
+        stencil, spacing = central_stencil(self.free, values, self.step)
         with PeakMemory(self.device) as memory:
             start = time.perf_counter()
-            runs = simulate(scenes, device=self.device, progress=self.progress, frames=self.frames[-1] + 1,
-                            compile=self.compile, backend=self.backend)
+            positions = self.predict(stencil, self.progress)
             elapsed = time.perf_counter() - start
-        losses = np.array([self._loss(run.positions) for run in runs])
+        losses = np.array([float(self.data_loss(torch.from_numpy(x))) for x in positions])
         gradient_u = (losses[2::2] - losses[1::2]) / spacing
         return Evaluation(
             values=np.asarray(values, dtype=np.float64),
@@ -83,9 +66,15 @@ class MpmFiniteDifference:
             forward_s=elapsed,
             backward_s=0.0,
             peak_memory_bytes=memory.peak_bytes,
-            deposit=runs[0].positions[self.frames[-1]].astype(np.float32),
+            deposit=positions[0, -1].astype(np.float32),
         )
 
-    def _loss(self, positions: np.ndarray) -> float:
-        predicted = torch.from_numpy(np.ascontiguousarray(positions[self.frames]))
-        return float(self.data_loss(predicted))
+    def predict(self, values: np.ndarray, progress: bool = False) -> np.ndarray:
+        """[K, F, N, 2] positions (m) at the observed frames of the scene at each row of values
+        [K, P] (degrees, kPa): one batched MPM run (float32 records)."""
+        from runout.mpm import simulate  # the MPM is only needed by this engine
+
+        scenes = [self.spec.scene_at(v) for v in values]
+        runs = simulate(scenes, device=self.device, progress=progress, frames=self.frames[-1] + 1,
+                        compile=self.compile, backend=self.backend)
+        return np.stack([run.positions[self.frames] for run in runs]).astype(np.float64)

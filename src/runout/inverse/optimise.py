@@ -50,6 +50,22 @@ def spans(free: tuple[FreeParameter, ...]) -> np.ndarray:
     return np.array([p.upper - p.lower for p in free])
 
 
+def central_stencil(free: tuple[FreeParameter, ...], values: np.ndarray, step: float) -> tuple[np.ndarray, np.ndarray]:
+    """([2P + 1, P] physical values: `values`, then one below and one above per parameter, a
+    fraction `step` of its bounds away, shortened one-sidedly at a bound; [P] the distance
+    between each pair in the normalised space)."""
+    u = np.array([p.normalise(v) for p, v in zip(free, values)])
+    points = [u]
+    spacing = np.empty(len(u))
+    for k in range(len(u)):
+        below, above = u.copy(), u.copy()
+        below[k] = max(u[k] - step, 0.0)
+        above[k] = min(u[k] + step, 1.0)
+        points += [below, above]
+        spacing[k] = above[k] - below[k]
+    return np.array([to_physical(free, x) for x in points]), spacing
+
+
 def deposit_path(out_dir: Path, evaluation: int) -> Path:
     return Path(out_dir) / DEPOSITS / f"eval_{evaluation:04d}.npy"
 

@@ -14,6 +14,7 @@ from typing import Callable
 
 import numpy as np
 import torch
+from tqdm.auto import tqdm
 
 from runout.errors import InputError
 from runout.learned.materials import encode_materials
@@ -75,6 +76,14 @@ class InverseProblem:
     def evaluate(self, values: np.ndarray) -> Evaluation:
         """Loss and its gradient w.r.t. the free values (physical units), with costs."""
         return timed_evaluation(values, self.loss, self.device)
+
+    def predict(self, values: np.ndarray, progress: bool = False) -> np.ndarray:
+        """[K, F, N, 2] positions (m) at the observed frames for each row of values [K, P]
+        (physical units): forward runs only."""
+        with torch.no_grad():
+            runs = [self.loss(torch.tensor(v, dtype=torch.float64, device=self.device))[1].to(torch.float64)
+                    for v in tqdm(np.asarray(values), desc="rollouts", unit="rollout", disable=not progress)]
+        return torch.stack(runs).cpu().numpy()
 
 
 def timed_evaluation(values: np.ndarray, loss_of, device: torch.device) -> Evaluation:

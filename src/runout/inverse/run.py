@@ -13,11 +13,13 @@ from runout.inverse.figures import (
     check_iterations, default_iterations, draw_deposits, draw_loss, draw_parameters, draw_starts, pick_iterations,
 )
 from runout.inverse.history import RunInfo
+from runout.inverse.intervals import DEFAULT_CONFIDENCE, Intervals, check_confidence, interval_lines
 from runout.inverse.memory import PeakMemory
 from runout.inverse.mpm_fd import check_step
 from runout.inverse.observation import Observation, load_observation
 from runout.inverse.optimise import Log, StartResult, run_starts, spread
 from runout.inverse.spec import InverseSpec, load_inverse_spec
+from runout.inverse.uncertainty import PROFILE_PNG, PROFILE_POINTS, UNCERTAINTY_JSON, estimate_uncertainty
 from runout.outputs import check_folder, claim
 
 LEARNED = ("gns", "neural-mpm")  # engines read from --model (runout.learned)
@@ -30,6 +32,7 @@ class InversionResult:
     spec: InverseSpec
     starts: list[StartResult]
     spread: list[dict]  # per parameter, over the starts (see optimise.spread)
+    intervals: Intervals | None = None  # at the best start's answer, with uncertainty=True
 
     @property
     def best(self) -> StartResult:
@@ -50,6 +53,8 @@ def invert(
     progress: bool = False,
     warn: Log | None = None,
     force: bool = False,
+    uncertainty: bool = False,
+    confidence: float = DEFAULT_CONFIDENCE,
 ) -> InversionResult:
     """Back-calculate the spec's free parameters; write histories and figures to out_dir.
 
@@ -59,25 +64,29 @@ def invert(
     differ), so the target must be a run of the scene at that spacing.
     A run killed part-way resumes when called again with the same arguments (force: start
     afresh). `log` receives one line per evaluation, `warn` each warning (e.g. a value
-    outside the model's training range); `progress` shows a bar over each forward run."""
+    outside the model's training range); `progress` shows a bar over each forward run.
+    uncertainty: then intervals at `confidence` on the best start's answer (runout.inverse.intervals),
+    written with the loss along each parameter to uncertainty.json and profile.png in out_dir;
+    a finished run is replayed from its history, not redone."""
     if engine is not None and engine not in ENGINES:
         raise InputError(f"--engine {engine!r} must be one of {', '.join(ENGINES)}.")
     if not 1 <= starts <= MAX_STARTS:
         raise InputError(f"--starts {starts} is outside the allowed range [1, {MAX_STARTS}].")
     check_step(fd_step)
+    check_confidence(confidence)
     spec = load_inverse_spec(spec_path)
     chosen = check_iterations(plot_iterations, spec.optimiser.max_iterations)
     inputs = {"the spec": spec_path, "its scene": spec.scene_path, "its target": spec.target.trajectory or spec.target.positions,
               "--model": model}
-    folder = check_folder(out_dir, "invert", _writes(starts), mode="resume", force=force, inputs=inputs)
+    folder = check_folder(out_dir, "invert", _writes(starts, uncertainty), mode="resume", force=force, inputs=inputs)
     learned, filled = None, "the scene"
     if engine is None or engine in LEARNED:
         learned = _learned_engine(model, device, engine)
         engine = learned.name
         spec, filled = _at_model_spacing(spec, learned, log)
     observation = load_observation(spec, filled, 1 if learned is None else learned.frame_stride)
-    evaluate, model_name = _evaluator(spec, observation, engine, learned, model, device, fd_step, checkpoint, progress,
-                                      warn)
+    evaluate, forward, model_name = _evaluator(spec, observation, engine, learned, model, device, fd_step, checkpoint,
+                                               progress, warn)
     claim(folder)
     info = RunInfo(digest=spec.digest, engine=engine, model=model_name, start=[])
     results = run_starts(
@@ -89,14 +98,23 @@ def invert(
     inversion = InversionResult(spec, results, spread(results, spec.free))
     if starts > 1:
         _write_starts(inversion, Path(out_dir))
+    if uncertainty:
+        if log:
+            log(f"intervals at the answer of {inversion.best.out_dir}: the Jacobian, then {PROFILE_POINTS * len(spec.free)} runs "
+                "along the parameters")
+        best = inversion.best
+        inversion.intervals = estimate_uncertainty(forward, spec.free, best.values, confidence, fd_step, Path(out_dir),
+                                                   observation.true_values, progress,
+                                                   best.out_dir.relative_to(out_dir).as_posix())
     return inversion
 
 
-def _writes(starts: int) -> tuple[str, ...]:
+def _writes(starts: int, uncertainty: bool) -> tuple[str, ...]:
     per_start = ("history.json", "history.csv", "loss.png", "parameters.png", "deposit.png", "deposits")
+    ends = (UNCERTAINTY_JSON, PROFILE_PNG) if uncertainty else ()
     if starts == 1:
-        return per_start
-    return tuple(f"start_{k:02d}" for k in range(starts)) + ("starts.json", "starts.csv", "starts.png")
+        return per_start + ends
+    return tuple(f"start_{k:02d}" for k in range(starts)) + ("starts.json", "starts.csv", "starts.png") + ends
 
 
 def _learned_engine(model, device: str, engine: str | None):
@@ -122,16 +140,19 @@ def _at_model_spacing(spec: InverseSpec, engine, log: Log | None) -> tuple[Inver
 
 
 def _evaluator(spec, observation, engine, learned, model, device, fd_step, checkpoint, progress, warn):
+    """(evaluate: values -> Evaluation, the forward run that predicts positions, the model's path or "")."""
     if engine == "mpm-fd":
         from runout.inverse.mpm_fd import MpmFiniteDifference
         from runout.mpm.budget import check_budget
 
         check_budget([spec.scene] * (2 * len(spec.free) + 1), observation.frames[-1] + 1, device, str(spec.source))
-        return MpmFiniteDifference(spec, observation, fd_step, device, progress), ""
+        engine = MpmFiniteDifference(spec, observation, fd_step, device, progress)
+        return engine, engine, ""
     if engine == "mpm-ad":
         from runout.inverse.mpm_ad import MpmAutodiff
 
-        return MpmAutodiff(spec, observation, device), ""
+        engine = MpmAutodiff(spec, observation, device)
+        return engine, engine, ""
     from runout.inverse.forward import inverse_problem
     from runout.learned.scenes import scene_at_rest
     from runout.learned.training_range import bound_warnings, range_warnings
@@ -142,7 +163,8 @@ def _evaluator(spec, observation, engine, learned, model, device, fd_step, check
             lines += bound_warnings(learned, p.name, p.unit, p.lower, p.upper)
         for line in lines:
             warn(line)
-    return inverse_problem(spec, observation, learned, checkpoint, progress).evaluate, str(Path(model).resolve())
+    problem = inverse_problem(spec, observation, learned, checkpoint, progress)
+    return problem.evaluate, problem, str(Path(model).resolve())
 
 
 def _draw(result: StartResult, observation: Observation, chosen, warn: Log | None) -> None:
@@ -179,7 +201,8 @@ def _write_starts(inversion: InversionResult, out_dir: Path) -> None:
 
 
 def summary_lines(inversion: InversionResult) -> list[str]:
-    """The final parameters with their bounds (best start), then the spread over starts."""
+    """The final parameters with their bounds (best start), then the spread over starts, then
+    the intervals when they were asked for."""
     best = inversion.best
     lines = [f"final loss {best.loss:.4g} m^2 after {best.iterations} iterations ({best.message})"]
     for p, v in zip(inversion.spec.free, best.values):
@@ -193,4 +216,6 @@ def summary_lines(inversion: InversionResult) -> list[str]:
             )
         losses = np.array([r.loss for r in inversion.starts])
         lines.append(f"  final losses {losses.min():.4g} .. {losses.max():.4g} m^2")
+    if inversion.intervals is not None:
+        lines += interval_lines(inversion.intervals)
     return lines
