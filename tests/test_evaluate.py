@@ -432,6 +432,17 @@ def test_bad_study_input_is_one_sentence(tmp_path, args, message):
     assert str(result.exception) == message
 
 
+def test_the_data_size_study_refuses_a_neural_mpm_in_one_sentence(tmp_path, capsys):
+    from test_cli_exits import one_sentence, run
+
+    model = tiny_neural_mpm(tmp_path / "nmpm.pt")
+    code, err = run(["evaluate", "sensitivity", "--data", tmp_path, "--init", model, "--out", tmp_path / "out"], capsys)
+    assert code == 2 and one_sentence(err)
+    assert err.strip().splitlines()[-1] == (f"error: --init {model}: holds a neural MPM, but the data-size study "
+                                            "fine-tunes GNS checkpoints only; give a GNS checkpoint.")
+    assert not (tmp_path / "out").exists()
+
+
 def test_bad_sizes_and_an_empty_report_are_input_errors(tmp_path):
     result = invoke(["evaluate", "sensitivity", "--data", tmp_path, "--init", tmp_path / "m.pt", "--out", tmp_path, "--sizes", "0,10"])
     assert str(result.exception) == "--sizes '0,10' must be positive whole numbers, e.g. 10,50,100."

@@ -222,7 +222,7 @@ def inverse(
 @evaluate_app.command()
 def sensitivity(
     data: Path = typer.Option(..., "--data", help="Dataset folder: train.npz, metadata.json and the held-out split."),
-    init: Path = typer.Option(..., "--init", help="Checkpoint every subset is fine-tuned from."),
+    init: Path = typer.Option(..., "--init", help="GNS checkpoint every subset is fine-tuned from (the study fine-tunes GNS models only)."),
     out: Path = OUT, device: str = DEVICE, progress: bool = PROGRESS, force: bool = FORCE,
     sizes: str = typer.Option(listed(SensitivityConfig.sizes), help="Subset sizes N (first N training simulations)."),
     steps: int = typer.Option(SensitivityConfig.steps, help="Fixed step budget per subset."),
@@ -231,15 +231,17 @@ def sensitivity(
     held_out: int = typer.Option(SensitivityConfig.held_out, "--held-out", help="Held-out simulations rolled out per model."),
     split: str = typer.Option(SensitivityConfig.split, help="Held-out split file in --data (test or valid)."),
 ) -> None:
-    """Data-size study (paper §6): fine-tune subsets under a fixed step and a fixed epoch budget; median and 25th-75th percentile rollout MSE on held-out simulations."""
+    """Data-size study (paper §6): fine-tune subsets of a GNS under a fixed step and a fixed epoch budget; median and 25th-75th percentile rollout MSE on held-out simulations."""
     from runout import checks
     from runout.evaluate import run_sensitivity
+    from runout.evaluate.sensitivity import check_init
 
     if split not in ("test", "valid"):
         raise InputError(f"--split {split!r} must be test or valid.")
     checks.device(device)
     cfg = SensitivityConfig(data, init, parse_sizes(sizes), steps, epochs, held_out, split, device=device, progress=progress,
                             budgets=tuple(b.strip() for b in budgets.split(",") if b.strip()))
+    check_init(init)
     _claim_out(out, "sensitivity", force, {"--data": data, "--init": init})
     s = run_sensitivity(cfg, out)
     for r in s["results"]:
