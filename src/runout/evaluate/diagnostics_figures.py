@@ -25,10 +25,10 @@ def draw_diagnostics(truth: Trajectory, predicted: Trajectory, frames: list[int]
         error = np.linalg.norm(v_pred - v_true, axis=1)
         xy = predicted.positions[frame, soil]
         t = f"t = {frame} ({frame * truth.frame_dt:.2f} s)"
-        _velocity_space(axes[0, col], v_pred, error, mean, std, f"{label}, {t}")
-        _positions(axes[1, col], xy, error, "|v$_{pred}$ − v$_{true}$| (m/s)", f"{label} velocity error, {t}", "magma")
-        _positions(axes[2, col], xy, np.linalg.norm(v_pred, axis=1), "|v$_{pred}$| (m/s)", f"{label} speed, {t}", "viridis")
-    fig.suptitle(f"{label} against the MPM: column a = {case.aspect:g}, φ = {case.phi:g}°, c = {case.cohesion:g} kPa")
+        _velocity_space(axes[0, col], v_pred, error, mean, std, f"{label} velocity space\n{t}")
+        _positions(axes[1, col], xy, error, "|v$_{pred}$ − v$_{true}$| (m/s)", f"{label} velocity error\n{t}", "magma")
+        _positions(axes[2, col], xy, np.linalg.norm(v_pred, axis=1), "|v$_{pred}$| (m/s)", f"{label} speed\n{t}", "viridis")
+    fig.suptitle(f"{label} against the MPM\ncolumn a = {case.aspect:g}, φ = {case.phi:g}°, c = {case.cohesion:g} kPa")
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
 
@@ -40,7 +40,7 @@ def _velocity_space(ax, v: np.ndarray, error: np.ndarray, mean: np.ndarray, std:
     for k, style in ((1, "-"), (2, "--")):
         ax.add_patch(Ellipse(mean, 2 * k * std[0], 2 * k * std[1], fill=False, ec="red", ls=style, lw=1.2,
                              label=f"{k}σ"))
-    ax.set(xlabel="v$_x$ (m/s)", ylabel="v$_y$ (m/s)", title=f"velocity space, {title}")
+    ax.set(xlabel="v$_x$ (m/s)", ylabel="v$_y$ (m/s)", title=title)
     ax.legend(fontsize=7, loc="lower left")
 
 
