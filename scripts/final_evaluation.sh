@@ -1,9 +1,11 @@
 #!/usr/bin/env bash
-# The measurement that ends the GNS campaign (issue 25, item 3): every study of the paper's
-# sections 5 and 6 with one model, rolled out from rest against solver 6 at the model's
-# resolution, then docs/results.md written from the outputs.
+# The measurement that ends a learned engine's campaign (issue 25 item 3, issue 57 item 5):
+# every study of the paper's sections 5 and 6 with one model of either engine (a GNS or a neural
+# MPM: the file says which, and every label names it), rolled out from rest against solver 6 at
+# the model's resolution, then docs/results.md written from the outputs.
 #
 #   bash scripts/final_evaluation.sh models/slope.pt runs/final            # columns, slope, diagnostics, inverse
+#   bash scripts/final_evaluation.sh models/neural-mpm.pt runs/final-nmpm  # the same studies of the neural MPM
 #   STUDIES="inverse" bash scripts/final_evaluation.sh models/slope.pt runs/final
 #   SENSITIVITY=1 bash scripts/final_evaluation.sh models/slope.pt runs/final   # also the data-size study
 #   EXTRA="--scale 0.2 --frames 12" DOC=/tmp/r.md bash scripts/final_evaluation.sh models/slope.pt /tmp/f  # a wiring check
@@ -13,9 +15,9 @@
 # after a crash or in the next session. Settings are the paper's: the 75-case column grid
 # (a = 0.5, 1, 2; phi 0-45 degrees; c 10-70 kPa) over 600 frames, the four-layer slope over its
 # 480 frames with both engines timed on this machine, the diagnostics at the paper's worst
-# column, the dam inverse (examples/dam_inverse.toml) through the GNS and through the MPM-AD
-# yardstick. The data-size study (paper section 6) fine-tunes subsets of data/ft8 from the base
-# model, as the paper does (SENSITIVITY_INIT, default models/base-best20000.pt, the campaign's own
+# column, the dam inverse (examples/dam_inverse.toml) through the model and through the MPM-AD
+# yardstick. The data-size study (paper section 6, GNS only) fine-tunes subsets of data/ft8 from
+# the GNS base model, as the paper does (SENSITIVITY_INIT, default models/base-best20000.pt, the campaign's own
 # start; SIZES, default 10,50,130,250; STEPS fine-tuning steps each, default 3000; one epoch as
 # the second budget) with the recipe that trained the shipped model, and is off unless
 # SENSITIVITY=1: on the 2-core CPU (about 3.4 steps/s) 3,000 steps take about 15 min a subset,

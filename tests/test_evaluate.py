@@ -1,10 +1,15 @@
 import csv
 import json
+import re
 import shutil
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from matplotlib.figure import Figure
+from matplotlib.text import Text
 from typer.testing import CliRunner
 
 import runout.mpm.cache as mpm_cache
@@ -44,18 +49,58 @@ def invoke(args):
     return CliRunner().invoke(app, [str(a) for a in args])
 
 
+def tiny_neural_mpm(path):
+    from runout.neural_mpm.checkpoint import save_checkpoint
+    from runout.neural_mpm.engine import NeuralMPM, NeuralMPMConfig
+
+    torch.manual_seed(0)
+    engine = NeuralMPM(NeuralMPMConfig(cell_size=8.0, point_spacing=4.0, history=2, frames_per_call=4, widths=(8, 16),
+                                       velocity_scale=0.1))
+    for p in engine.parameters():
+        p.data.normal_(0.0, 0.1)
+    return save_checkpoint(path, engine)
+
+
+@dataclass
+class Studies:
+    root: Path  # model.pt, cache/
+    out: Path  # the studies' results
+    lines: dict[str, str]  # each study command's output
+    texts: dict[str, list[str]]  # the texts of every figure saved, by "<folder>/<file>"
+
+
+def run_studies(root: Path, model: Path, inverse: tuple[str, ...] = ()) -> Studies:
+    """The columns, slope, diagnostics and inverse studies of `model` run (coarse) into root/out."""
+    common = ["--model", model, "--out", root / "out", "--cache", root / "cache", *COARSE]
+    lines, texts, save = {}, {}, Figure.savefig
+
+    def recording(fig, path, *args, **kwargs):
+        texts[f"{Path(path).parent.name}/{Path(path).name}"] = [t.get_text() for t in fig.findobj(Text)]
+        return save(fig, path, *args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(Figure, "savefig", recording)
+        for args in (["columns", *COLUMN_GRID], ["slope", "--scale", "0.2"],
+                     ["diagnostics", "--aspect", "1", "--phi", "22.5", "--c", "25", "--scale", "0.2"],
+                     ["inverse", "--scale", "0.4", "--max-iterations", "1", *inverse]):
+            result = invoke(["evaluate", *args, *common])
+            assert result.exit_code == 0, result.output
+            lines[args[0]] = result.output
+    return Studies(root, root / "out", lines, texts)
+
+
 @pytest.fixture(scope="module")
 def studies(tmp_path_factory):
-    """A tiny model, and the columns, slope, diagnostics and inverse studies run on it (coarse)."""
+    """A tiny GNS, and the columns, slope, diagnostics and inverse studies run on it (coarse)."""
     root = tmp_path_factory.mktemp("evaluate")
-    model = tiny_model(root / "model.pt")
-    common = ["--model", model, "--out", root / "out", "--cache", root / "cache", *COARSE]
-    for args in (["columns", *COLUMN_GRID], ["slope", "--scale", "0.2"],
-                 ["diagnostics", "--aspect", "1", "--phi", "22.5", "--c", "25", "--scale", "0.2"],
-                 ["inverse", "--scale", "0.4", "--max-iterations", "1"]):
-        result = invoke(["evaluate", *args, *common])
-        assert result.exit_code == 0, result.output
-    return root
+    return run_studies(root, tiny_model(root / "model.pt"))
+
+
+@pytest.fixture(scope="module")
+def neural_mpm_studies(tmp_path_factory):
+    """A tiny neural MPM, and the same studies run on it (the inverse without its yardstick)."""
+    root = tmp_path_factory.mktemp("evaluate_neural_mpm")
+    return run_studies(root, tiny_neural_mpm(root / "model.pt"), ("--no-yardstick",))
 
 
 def line(positions) -> Trajectory:
@@ -119,8 +164,8 @@ def test_a_second_columns_run_reads_the_mpm_from_the_cache(studies, tmp_path, mo
 
     monkeypatch.setattr(mpm_cache, "simulate", no_mpm)
     one_case = ["--aspects", "2", "--phis", "22.5", "--cohesions", "25", "--scale", "0.2"]
-    result = invoke(["evaluate", "columns", *one_case, *COARSE, "--model", studies / "model.pt", "--out", tmp_path,
-                     "--cache", studies / "cache"])
+    result = invoke(["evaluate", "columns", *one_case, *COARSE, "--model", studies.root / "model.pt", "--out", tmp_path,
+                     "--cache", studies.root / "cache"])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "columns" / "cases.csv").read_text().count("\n") == 2
 
@@ -145,47 +190,51 @@ def test_a_study_runs_the_mpm_and_the_gns_at_the_models_spacing(tmp_path):
     assert lines == ["filling column_a1.toml at the model's 5 m spacing (10 m cells) instead of the scene's 4 m cells"]
     mpm_dir = tmp_path / "cache" / summary["percentile_cases"]["50"]["mpm_key"]
     assert load_scene(mpm_dir / "scene.toml").domain.cell_size == 10.0
-    gns = load_trajectory(tmp_path / "out" / "columns" / "gns" / "column_a1_phi22.5_c25")
-    assert point_spacing(load_trajectory(mpm_dir)) == point_spacing(gns) == pytest.approx(5.0)
+    predicted = load_trajectory(tmp_path / "out" / "columns" / "predicted" / "column_a1_phi22.5_c25")
+    assert point_spacing(load_trajectory(mpm_dir)) == point_spacing(predicted) == pytest.approx(5.0)
     assert summary["percentile_cases"]["50"]["L0_m"] == pytest.approx(30.0)  # a 150 m column at scale 0.2
 
 
 def test_columns_writes_every_case_with_its_runouts_and_errors(studies):
-    folder = studies / "out" / "columns"
+    folder = studies.out / "columns"
     with (folder / "cases.csv").open() as f:
         rows = list(csv.DictReader(f))
     assert tuple(rows[0]) == CSV_COLUMNS and len(rows) == 2
+    assert {"Lf_predicted_m", "runout_norm_predicted", "predicted_wall_s"} <= set(rows[0])  # the engine's, whichever ran
+    assert not any("gns" in column for column in rows[0])
     for row in rows:
         l0, lf, n = float(row["L0_m"]), float(row["Lf_mpm_m"]), float(row["runout_norm_mpm"])
         assert n == pytest.approx((lf - l0) / l0)
-        expected = abs(float(row["runout_norm_gns"]) - n) / n * 100
+        expected = abs(float(row["runout_norm_predicted"]) - n) / n * 100
         assert float(row["ape_percent"]) == pytest.approx(expected)
     assert {float(r["L0_m"]) for r in rows} == {30.0, 20.0}  # columns 150 and 100 m wide, scale 0.2
     summary = json.loads((folder / "summary.json").read_text())
     assert [b["aspect"] for b in summary["by_aspect"]] == [1.0, 2.0] and summary["model"]["steps"] is None
+    assert summary["predicted_wall_s_total"] > 0 and sorted(p.name for p in (folder / "predicted").iterdir()) == [r["case"] for r in rows]
     for name in ("runout_1to1.png", "error_heatmaps.png", "evolution_p25.png", "evolution_p50.png", "evolution_p75.png"):
         assert (folder / name).stat().st_size > 1000
 
 
 def test_slope_reports_both_sides_wall_times_and_figures(studies):
-    folder = studies / "out" / "slope"
+    folder = studies.out / "slope"
     s = json.loads((folder / "summary.json").read_text())
     assert s["centre_m"] == pytest.approx(100.0) and s["frames"] == 12
-    assert s["runout_left_m"]["mpm"] > 0 and s["runout_right_m"]["gns"] > 0
-    assert s["wall_time_s"]["mpm"] > 0 and s["wall_time_s"]["gns"] > 0
+    assert s["runout_left_m"]["mpm"] > 0 and s["runout_right_m"]["predicted"] > 0
+    assert s["wall_time_s"]["mpm"] > 0 and s["wall_time_s"]["predicted"] > 0
+    assert (folder / "predicted" / "trajectory.npz").is_file() and not (folder / "gns").exists()
     for name in ("fields_materials.png", "fields_displacement.png", "displacement_error.png"):
         assert (folder / name).stat().st_size > 1000
 
 
 def test_diagnostics_use_the_models_training_velocities(studies):
-    s = json.loads((studies / "out" / "diagnostics" / "summary.json").read_text())
+    s = json.loads((studies.out / "diagnostics" / "summary.json").read_text())
     np.testing.assert_allclose(s["training_velocity_m_s"]["std"], np.array(STATS.vel_std) / 0.0375)
     assert [f["frame"] for f in s["frames"]] == [11]
-    assert (studies / "out" / "diagnostics" / "velocity_diagnostics.png").is_file()
+    assert (studies.out / "diagnostics" / "velocity_diagnostics.png").is_file()
 
 
 def test_inverse_records_truth_bounds_model_loss_and_figures(studies):
-    folder = studies / "out" / "inverse"
+    folder = studies.out / "inverse"
     s = json.loads((folder / "summary.json").read_text())
     assert [(p["true"], p["lower"], p["upper"]) for p in s["parameters"]] == [(40.0, 10.0, 100.0), (100.0, 99.0, 101.0), (41.0, 5.0, 50.0)]
     assert all(p["lower"] <= p["inferred"] <= p["upper"] for p in s["parameters"])
@@ -195,7 +244,7 @@ def test_inverse_records_truth_bounds_model_loss_and_figures(studies):
 
 
 def test_inverse_solves_the_same_problem_through_the_mpm_as_its_yardstick(studies):
-    s = json.loads((studies / "out" / "inverse" / "summary.json").read_text())
+    s = json.loads((studies.out / "inverse" / "summary.json").read_text())
     y = s["yardstick"]
     assert s["engine"] == "gns" and y["engine"] == "mpm-ad"
     assert [p["name"] for p in y["parameters"]] == [p["name"] for p in s["parameters"]]
@@ -204,7 +253,7 @@ def test_inverse_solves_the_same_problem_through_the_mpm_as_its_yardstick(studie
     for engine in (s, y):  # the cost of an iteration: every evaluation's forward and backward time over the iterations
         assert engine["seconds"] > 0
         assert engine["seconds_per_iteration"] == pytest.approx(engine["seconds"] / max(engine["iterations"], 1))
-    history = json.loads((studies / "out" / "inverse" / "run_mpm_ad" / "history.json").read_text())
+    history = json.loads((studies.out / "inverse" / "run_mpm_ad" / "history.json").read_text())
     assert history["run"]["engine"] == "mpm-ad" and history["run"]["model"] == ""
 
 
@@ -258,25 +307,103 @@ def test_sensitivity_can_run_the_step_budget_alone(tmp_path, capfd):
     assert str(bad.exception) == "--budgets 'hours' must name steps, epochs or both, e.g. steps,epochs."
 
 
-def test_report_sets_the_papers_figures_beside_ours_at_the_papers_geometry():
-    from runout.evaluate.report import SECTIONS
-
+def column_and_slope_summaries(engine: str) -> tuple[dict, dict]:
+    """A columns and a slope summary at the paper's geometry, with keys as the code writes them
+    now (engine "predicted") or as it wrote them before they named no engine ("gns")."""
+    case = {"aspect": 1.0, "phi_deg": 0.0, "cohesion_kpa": 10.0, "runout_norm_mpm": 3.5, f"runout_norm_{engine}": 3.0,
+            "ape_percent": 14.29}
     columns = {"cases": 1, "grid": {"aspects": [1.0], "phis_deg": [0.0], "cohesions_kpa": [10.0], "frames": 600, "scale": 1.0},
-               "mean_ape_percent": 5.0, "median_ape_percent": 5.0, "gns_wall_s_total": 1.0, "percentile_cases": {},
+               "mean_ape_percent": 5.0, "median_ape_percent": 5.0, f"{engine}_wall_s_total": 1.0, "percentile_cases": {"50": case},
                "by_aspect": [{"aspect": 1.0, "cases": 1, "mean_ape_percent": 5.0, "cv_ape": 0.1, "r2": 0.9}]}
-    assert "| 1 | 1 | 5 | 3.55 | 0.1 | 0.9 | 0.994 |" in SECTIONS["columns"](columns)  # §5.1.1: a = 1
-    side = {"mpm": 300.0, "gns": 297.0, "ape_percent": 1.0}
+    side = {"mpm": 300.0, engine: 297.0, "ape_percent": 1.0}
     slope = {"points": 10, "frames": 480, "scale": 1.0, "centre_m": 500.0, "runout_left_m": side, "runout_right_m": side,
              "median_displacement_error_final_m": 1.0, "max_displacement_error_final_m": 2.0,
-             "wall_time_s": {"mpm": 1.0, "mpm_device": "cpu", "mpm_host": "h", "mpm_batch_size": 1, "gns": 2.0,
-                             "gns_device": "cpu", "gns_host": "h"}}
-    lines = SECTIONS["slope"](slope)
+             "wall_time_s": {"mpm": 1.0, "mpm_device": "cpu", "mpm_host": "h", "mpm_batch_size": 1, engine: 2.0,
+                             f"{engine}_device": "cuda", f"{engine}_host": "g"}}
+    return columns, slope
+
+
+@pytest.mark.parametrize("keys", ["predicted", "gns"])
+@pytest.mark.parametrize("label", ["GNS", "neural MPM"])
+def test_report_sets_the_papers_figures_beside_ours_at_the_papers_geometry(keys, label):
+    from runout.evaluate.report import SECTIONS
+
+    columns, slope = column_and_slope_summaries(keys)
+    lines = SECTIONS["columns"](columns, label)
+    assert "| 1 | 1 | 5 | 3.55 | 0.1 | 0.9 | 0.994 |" in lines  # §5.1.1: a = 1
+    assert f"| percentile | a | φ (°) | c (kPa) | L^n MPM | L^n {label} | error (%) |" in lines
+    assert "| 50 | 1 | 0 | 10 | 3.5 | 3 | 14.29 |" in lines
+    assert any(f"{label} wall time for all cases 1.0 s." in line for line in lines)
+    lines = SECTIONS["slope"](slope, label)
     assert "| left | 300 | 297 | 1 | 1.57 |" in lines and "| right | 300 | 297 | 1 | 0.96 |" in lines  # §5.1.2
+    assert f"| side | MPM (m) | {label} (m) | error (%) | paper (%) |" in lines
+    assert lines[-1].endswith(f"{label} 2 s (cuda on g).")
+
+
+def test_report_reads_the_summaries_of_the_code_before_its_keys_named_no_engine(tmp_path):
+    """docs/results.md was written from such summaries (runs/final*): they must still be reported."""
+    card = {"path": "models/slope.pt", "sha256": "7092af7fec97", "steps": 157561, "base_steps": 20000,
+            "training_data": "data/ft8", "initialised_from": "models/base-best20000.pt",
+            "material_features": ["tan_phi", "c_over_100kPa"], "parameters": 215762, "network": {}}  # no engine, no stride
+    columns, slope = column_and_slope_summaries("gns")
+    for study, summary in (("columns", columns), ("slope", slope)):
+        (tmp_path / "out" / study).mkdir(parents=True)
+        (tmp_path / "out" / study / "summary.json").write_text(json.dumps({"study": study, "model": card, **summary}))
+    doc = tmp_path / "r.md"
+    result = invoke(["evaluate", "report", "--out", tmp_path / "out", "--doc", doc])
+    assert result.exit_code == 0, result.output
+    text = doc.read_text()
+    assert text.count("(GNS, sha256 7092af7fec97…, 215,762 parameters") == 2
+    assert "GNS wall time for all cases 1.0 s." in text and "| L^n MPM | L^n GNS |" in text
+    assert "| 50 | 1 | 0 | 10 | 3.5 | 3 | 14.29 |" in text and "| left | 300 | 297 | 1 | 1.57 |" in text
+    assert "GNS 2 s (cuda on g)." in text
+
+
+FIGURES_NAMING_THE_ENGINE = ("columns/runout_1to1.png", "columns/evolution_p75.png", "slope/fields_materials.png",
+                             "slope/fields_displacement.png", "slope/displacement_error.png",
+                             "diagnostics/velocity_diagnostics.png")
+
+
+def assert_named(studies: Studies, label: str, other: str) -> None:
+    """Every figure that shows the learned engine, and the slope's and the inverse's lines, name it,
+    never the other engine."""
+    for name in FIGURES_NAMING_THE_ENGINE:
+        texts = studies.texts[name]
+        assert any(label in text for text in texts), name
+        assert not any(other in text for text in texts), name
+    assert re.search(rf"wall time MPM \S+ s, {label} \S+ s", studies.lines["slope"])
+    assert f"seconds per L-BFGS-B iteration: {label} " in studies.lines["inverse"]
+    assert not any(other in text for text in studies.lines.values())
+
+
+def test_every_label_names_the_gns_that_ran(studies):
+    assert_named(studies, "GNS", "neural MPM")
+    assert json.loads((studies.out / "inverse" / "summary.json").read_text())["engine"] == "gns"
+
+
+def test_every_label_names_the_neural_mpm_that_ran(neural_mpm_studies, tmp_path):
+    studies = neural_mpm_studies
+    assert_named(studies, "neural MPM", "GNS")
+    for study in ("columns", "slope", "diagnostics"):
+        assert (studies.out / study / "predicted").is_dir() and not (studies.out / study / "gns").exists()
+    for study in ("columns", "slope", "diagnostics", "inverse"):
+        text = (studies.out / study / "summary.json").read_text()
+        assert '"engine": "neural-mpm"' in text and "gns" not in text
+    doc = tmp_path / "r.md"
+    assert invoke(["evaluate", "report", "--out", studies.out, "--doc", doc]).exit_code == 0
+    text = doc.read_text()
+    assert text.count("(neural MPM, sha256") == 4
+    assert "neural MPM wall time for all cases" in text and "| L^n MPM | L^n neural MPM | error (%) |" in text
+    assert "| side | MPM (m) | neural MPM (m) | error (%) | paper (%) |" in text
+    assert "Velocity errors of the neural MPM against the MPM:" in text
+    assert "| inferred (neural MPM) | paper (GNS) |" in text and "Per iteration (neural MPM):" in text
+    assert "Cost on this machine: neural MPM " in text
+    assert text.count("GNS") == text.count("paper (GNS)") + text.count("The paper's GNS")  # the paper's figures alone
 
 
 def test_report_names_the_model_and_links_existing_figures(studies, tmp_path):
     doc = tmp_path / "docs" / "results.md"
-    result = invoke(["evaluate", "report", "--out", studies / "out", "--doc", doc])
+    result = invoke(["evaluate", "report", "--out", studies.out, "--doc", doc])
     assert result.exit_code == 0, result.output
     text = doc.read_text()
     assert "untrained (saved without a training run)" in text and "shrunk: not the paper's geometry" in text
@@ -303,6 +430,17 @@ def test_bad_study_input_is_one_sentence(tmp_path, args, message):
     result = invoke(["evaluate", *args, "--model", model, "--out", tmp_path / "o", "--cache", tmp_path / "c", "--no-progress"])
     assert isinstance(result.exception, InputError)
     assert str(result.exception) == message
+
+
+def test_the_data_size_study_refuses_a_neural_mpm_in_one_sentence(tmp_path, capsys):
+    from test_cli_exits import one_sentence, run
+
+    model = tiny_neural_mpm(tmp_path / "nmpm.pt")
+    code, err = run(["evaluate", "sensitivity", "--data", tmp_path, "--init", model, "--out", tmp_path / "out"], capsys)
+    assert code == 2 and one_sentence(err)
+    assert err.strip().splitlines()[-1] == (f"error: --init {model}: holds a neural MPM, but the data-size study "
+                                            "fine-tunes GNS checkpoints only; give a GNS checkpoint.")
+    assert not (tmp_path / "out").exists()
 
 
 def test_bad_sizes_and_an_empty_report_are_input_errors(tmp_path):

@@ -1,5 +1,7 @@
-"""`runout evaluate ...`: the paper's results sections as commands, for any GNS checkpoint,
-and `runout evaluate heldout`, the held-out measure of any learned engine's checkpoint.
+"""`runout evaluate ...`: the paper's results sections as commands, for any learned engine's
+checkpoint (GNS or neural MPM; the file says which; the data-size study fine-tunes GNS
+checkpoints only), and `runout evaluate heldout`, the held-out measure of any learned engine's
+checkpoint.
 
 Each study writes OUT/<study>/ (summary.json, CSV, figures); `runout evaluate report`
 turns them into docs/results.md. Scenes are filled at the model's point spacing for both
@@ -29,12 +31,14 @@ evaluate_app = typer.Typer(
 )
 app.add_typer(evaluate_app, name="evaluate")
 
+MODEL_HELP = "Learned-engine checkpoint (GNS or neural MPM; the file says which)"
+
 # The options every study on the example scenes takes, defined once: study_command puts them
 # first in each such command's signature and hands them over as one Study.
 STUDY_OPTIONS = {
-    "model": (Path, typer.Option(..., "--model", help="GNS checkpoint (.pt) to evaluate.")),
+    "model": (Path, typer.Option(..., "--model", help=f"{MODEL_HELP} to evaluate.")),
     "out": (Path, typer.Option(..., "--out", help="Results folder; each study writes OUT/<study>/.")),
-    "device": (str, typer.Option("cpu", "--device", help="cpu or cuda, for both the MPM and the GNS.")),
+    "device": (str, typer.Option("cpu", "--device", help="cpu or cuda, for both the MPM and the learned engine.")),
     "cache": (Path, typer.Option(DEFAULT_CACHE, "--cache", help="Folder of cached MPM runs, keyed by a hash of each scene's TOML.")),
     "examples": (Path, typer.Option(EXAMPLES, "--examples", help="Folder holding the example scenes (column_a*.toml, four_layer_slope.toml, dam.toml, dam_inverse.toml).")),
     "scale": (float, typer.Option(1.0, "--scale", help="Shrink domain and geometry by this factor in (0, 1] (cells stay the model's); 1 = the paper's geometry.")),
@@ -99,6 +103,13 @@ def _claim_out(out: Path, study: str, force: bool, inputs) -> None:
     prepare_folder(out, "evaluate", (study,), mode="add", force=force, inputs=inputs)
 
 
+def _label(summary: dict) -> str:
+    """The name of the engine that ran a study (GNS, neural MPM), from its summary's model card."""
+    from runout.evaluate.model_card import ModelCard
+
+    return ModelCard(**summary["model"]).label
+
+
 def parse_numbers(text: str, option: str) -> tuple[float, ...]:
     """'0.5,1,2' -> (0.5, 1.0, 2.0)."""
     try:
@@ -130,7 +141,7 @@ def columns(
     cohesions: str = typer.Option(listed(ColumnGrid.cohesions), help="Cohesions (kPa)."),
     frames: int = typer.Option(ColumnGrid.frames, help="Frames of every run (0.0375 s apart)."),
 ) -> None:
-    """Column-collapse grid (paper §5.1.1): normalised runout of MPM and GNS, errors, R², 1:1 plots, error heat maps and the 25th/50th/75th-percentile cases over time."""
+    """Column-collapse grid (paper §5.1.1): normalised runout of the MPM and the learned engine, errors, R², 1:1 plots, error heat maps and the 25th/50th/75th-percentile cases over time."""
     from runout.evaluate import ColumnGrid, run_columns
 
     engines = study.start("columns", frames)
@@ -154,7 +165,7 @@ def slope(
     engines = study.start("slope", frames)
     s = run_slope(study.model, study.out, engines, study.examples, frames, study.scale, rerun_mpm)
     typer.echo(f"runout error left {s['runout_left_m']['ape_percent']:.2f} %, right {s['runout_right_m']['ape_percent']:.2f} %; "
-               f"wall time MPM {s['wall_time_s']['mpm']:.4g} s, GNS {s['wall_time_s']['gns']:.4g} s")
+               f"wall time MPM {s['wall_time_s']['mpm']:.4g} s, {_label(s)} {s['wall_time_s']['predicted']:.4g} s")
     typer.echo(f"wrote {study.out / 'slope'}/summary.json and figures")
 
 
@@ -203,7 +214,7 @@ def inverse(
         beside = "" if y is None else f", MPM-AD {y['parameters'][k]['inferred']:.4g}"
         typer.echo(f"{p['name']}: inferred {p['inferred']:.4g} {p['unit']}{beside} (true {p['true']}, "
                    f"bounds [{p['lower']:g}, {p['upper']:g}])")
-    typer.echo(f"seconds per L-BFGS-B iteration: GNS {s['seconds_per_iteration']:.3g}"
+    typer.echo(f"seconds per L-BFGS-B iteration: {_label(s)} {s['seconds_per_iteration']:.3g}"
                + ("" if y is None else f", MPM-AD {y['seconds_per_iteration']:.3g}"))
     typer.echo(f"wrote {study.out / 'inverse'}/summary.json, target.png and run/" + ("" if y is None else " and run_mpm_ad/"))
 
@@ -211,7 +222,7 @@ def inverse(
 @evaluate_app.command()
 def sensitivity(
     data: Path = typer.Option(..., "--data", help="Dataset folder: train.npz, metadata.json and the held-out split."),
-    init: Path = typer.Option(..., "--init", help="Checkpoint every subset is fine-tuned from."),
+    init: Path = typer.Option(..., "--init", help="GNS checkpoint every subset is fine-tuned from (the study fine-tunes GNS models only)."),
     out: Path = OUT, device: str = DEVICE, progress: bool = PROGRESS, force: bool = FORCE,
     sizes: str = typer.Option(listed(SensitivityConfig.sizes), help="Subset sizes N (first N training simulations)."),
     steps: int = typer.Option(SensitivityConfig.steps, help="Fixed step budget per subset."),
@@ -220,15 +231,17 @@ def sensitivity(
     held_out: int = typer.Option(SensitivityConfig.held_out, "--held-out", help="Held-out simulations rolled out per model."),
     split: str = typer.Option(SensitivityConfig.split, help="Held-out split file in --data (test or valid)."),
 ) -> None:
-    """Data-size study (paper §6): fine-tune subsets under a fixed step and a fixed epoch budget; median and 25th-75th percentile rollout MSE on held-out simulations."""
+    """Data-size study (paper §6): fine-tune subsets of a GNS under a fixed step and a fixed epoch budget; median and 25th-75th percentile rollout MSE on held-out simulations."""
     from runout import checks
     from runout.evaluate import run_sensitivity
+    from runout.evaluate.sensitivity import check_init
 
     if split not in ("test", "valid"):
         raise InputError(f"--split {split!r} must be test or valid.")
     checks.device(device)
     cfg = SensitivityConfig(data, init, parse_sizes(sizes), steps, epochs, held_out, split, device=device, progress=progress,
                             budgets=tuple(b.strip() for b in budgets.split(",") if b.strip()))
+    check_init(init)
     _claim_out(out, "sensitivity", force, {"--data": data, "--init": init})
     s = run_sensitivity(cfg, out)
     for r in s["results"]:
@@ -239,7 +252,7 @@ def sensitivity(
 
 @evaluate_app.command()
 def heldout(
-    model: Path = typer.Argument(..., help="Learned-engine checkpoint (.pt): a GNS or a neural MPM, the file says which."),
+    model: Path = typer.Argument(..., help=f"{MODEL_HELP}."),
     data: Path = typer.Option(..., "--data", help="Dataset folder with metadata.json and the held-out split (test.npz or valid.npz)."),
     out: Path = typer.Option(..., "--out", help="Results folder: metrics.json, column.png (and curves.png with --log)."),
     split: str = typer.Option("test", "--split", help="Held-out split: test, or valid (the scenes training runs are judged on)."),

@@ -1,4 +1,5 @@
-"""The paper's forward and inverse studies as reproducible runs for any GNS checkpoint.
+"""The paper's forward and inverse studies as reproducible runs for any learned engine's
+checkpoint (GNS or neural MPM; the file says which; the data-size study fine-tunes a GNS).
 
     from runout.evaluate import ColumnGrid, MpmCache, StudyContext, run_columns, write_report
     run_columns("model.pt", "out/eval", ColumnGrid(), StudyContext(MpmCache(), device="cuda"))

@@ -22,8 +22,8 @@ def _material_labels(rows) -> list[tuple[float, float]]:
     return sorted({(r.phi_deg, r.cohesion_kpa) for r in rows})
 
 
-def draw_runout_comparison(rows, stats: list[dict], path: Path) -> None:
-    """L^n of the GNS against the MPM, one panel per aspect ratio, with the 1:1 line."""
+def draw_runout_comparison(rows, stats: list[dict], path: Path, label: str) -> None:
+    """L^n of the engine named `label` against the MPM, one panel per aspect ratio, with the 1:1 line."""
     aspects, labels = _aspects(rows), _material_labels(rows)
     colours = [_colour(k, len(labels)) for k in range(len(labels))]
     r2 = {s["aspect"]: s["r2"] for s in stats}
@@ -33,11 +33,11 @@ def draw_runout_comparison(rows, stats: list[dict], path: Path) -> None:
         group = [r for r in rows if r.aspect == aspect]
         for r in group:
             k = labels.index((r.phi_deg, r.cohesion_kpa))
-            ax.scatter(r.runout_norm_mpm, r.runout_norm_gns, color=colours[k], s=28, edgecolors="k", linewidths=0.4)
-        values = [v for r in group for v in (r.runout_norm_mpm, r.runout_norm_gns) if np.isfinite(v)]
+            ax.scatter(r.runout_norm_mpm, r.runout_norm_predicted, color=colours[k], s=28, edgecolors="k", linewidths=0.4)
+        values = [v for r in group for v in (r.runout_norm_mpm, r.runout_norm_predicted) if np.isfinite(v)]
         lo, hi = min(values + [0.0]), max(values + [1e-3])
         ax.plot([lo, hi], [lo, hi], "k--", lw=0.8)
-        ax.set(xlabel="$L^n$ MPM", ylabel="$L^n$ GNS", title=f"a = {aspect:g}, $R^2$ = {r2[aspect]:.3f}", aspect="equal")
+        ax.set(xlabel="$L^n$ MPM", ylabel=f"$L^n$ {label}", title=f"a = {aspect:g}, $R^2$ = {r2[aspect]:.3f}", aspect="equal")
     handles = [axes[0].scatter([], [], color=colours[k], s=28, edgecolors="k", linewidths=0.4,
                                label=f"{k}: φ={p:g}°, c={c:g} kPa") for k, (p, c) in enumerate(labels)]
     fig.legend(handles=handles, loc="outside right center", fontsize=6, title="material", title_fontsize=7)
@@ -70,22 +70,22 @@ def draw_error_heatmaps(rows, stats: list[dict], path: Path) -> None:
     _save(fig, path)
 
 
-def draw_evolution(truth: Trajectory, predicted: Trajectory, row, percentile: int, path: Path) -> None:
-    """MPM (top) and GNS (bottom) at evenly spaced frames of one case."""
+def draw_evolution(truth: Trajectory, predicted: Trajectory, row, percentile: int, path: Path, label: str) -> None:
+    """MPM (top) and the engine named `label` (bottom) at evenly spaced frames of one case."""
     last = min(truth.n_frames, predicted.n_frames) - 1
     frames = sorted({round(k * last / (EVOLUTION_COLUMNS - 1)) for k in range(EVOLUTION_COLUMNS)})
-    x_hi = max(row.Lf_mpm_m, row.Lf_gns_m, row.L0_m) * 1.1
+    x_hi = max(row.Lf_mpm_m, row.Lf_predicted_m, row.L0_m) * 1.1
     y_hi = float(truth.positions[0, truth.soil, 1].max()) * 1.1
     fig = Figure(figsize=(3.6 * len(frames), 2 * max(2.0, 3.6 * y_hi / x_hi) + 0.8), layout="constrained")
     axes = fig.subplots(2, len(frames), squeeze=False, sharex=True, sharey=True)
     for col, frame in enumerate(frames):
-        for ax, traj, engine in ((axes[0, col], truth, "MPM"), (axes[1, col], predicted, "GNS")):
+        for ax, traj, engine in ((axes[0, col], truth, "MPM"), (axes[1, col], predicted, label)):
             draw_materials(ax, traj, frame, f"{engine}, t = {frame * traj.frame_dt:.2f} s (frame {frame})", legend=False)
             ax.set_xlim(0, x_hi)
             ax.set_ylim(0, y_hi)
             ax.label_outer()
     fig.suptitle(f"{percentile}th error percentile: a = {row.aspect:g}, φ = {row.phi_deg:g}°, c = {row.cohesion_kpa:g} kPa; "
-                 f"$L^n$ GNS {row.runout_norm_gns:.3f} vs MPM {row.runout_norm_mpm:.3f} ({row.ape_percent:.2f} %)", fontsize=10)
+                 f"$L^n$ {label} {row.runout_norm_predicted:.3f} vs MPM {row.runout_norm_mpm:.3f} ({row.ape_percent:.2f} %)", fontsize=10)
     _save(fig, path)
 
 

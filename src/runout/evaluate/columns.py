@@ -1,15 +1,18 @@
-"""Column-collapse study (paper §5.1.1): MPM and GNS over a grid of aspect ratio, phi and c.
+"""Column-collapse study (paper §5.1.1): the MPM and a learned engine (GNS or neural MPM) over a
+grid of aspect ratio, phi and c.
 
 For every case: L_0 and L_f are the runout fronts (the largest x of the soil points plus
 half the point spacing, i.e. the edge of the material the points stand for) of the column
 against the left wall at the first and the last frame (m), L^n = (L_f - L_0) / L_0, and the
-error is |L^n_GNS - L^n_MPM| / L^n_MPM x 100 (%). Per aspect ratio: mean error, its
-coefficient of variation and R² of the GNS against the MPM (1:1 line). The GNS starts from
-rest (the MPM's frame 0 held), as a user's scene does; both run at the model's point
-spacing.
+error is |L^n_predicted - L^n_MPM| / L^n_MPM x 100 (%), "predicted" being the engine's.
+Per aspect ratio: mean error, its coefficient of variation and R² of the engine against the
+MPM (1:1 line). The engine starts from rest (the MPM's frame 0 held), as a user's scene does;
+both run at the model's point spacing.
 
 Writes OUT/columns/: cases.csv, summary.json, runout_1to1.png, error_heatmaps.png,
-evolution_p25.png, evolution_p50.png, evolution_p75.png and gns/<case>/ trajectories.
+evolution_p25.png, evolution_p50.png, evolution_p75.png and predicted/<case>/ (the engine's
+trajectories). Summaries written before the keys named no engine say gns where these say
+predicted (runout.evaluate.report reads both).
 """
 
 from __future__ import annotations
@@ -38,9 +41,10 @@ from runout.mpm.cache import MpmCache
 from runout.trajectory import Trajectory, load_trajectory, save_trajectory
 
 PERCENTILES = (25, 50, 75)  # error percentiles whose cases get a time-evolution figure
+PREDICTED = "predicted"  # the folder of the engine's trajectories, as runout compare names it
 CSV_COLUMNS = (
-    "case", "aspect", "phi_deg", "cohesion_kpa", "L0_m", "Lf_mpm_m", "Lf_gns_m",
-    "runout_norm_mpm", "runout_norm_gns", "ape_percent", "frames", "gns_wall_s", "mpm_key",
+    "case", "aspect", "phi_deg", "cohesion_kpa", "L0_m", "Lf_mpm_m", "Lf_predicted_m",
+    "runout_norm_mpm", "runout_norm_predicted", "ape_percent", "frames", "predicted_wall_s", "mpm_key",
 )
 
 
@@ -52,12 +56,12 @@ class ColumnResult:
     cohesion_kpa: float
     L0_m: float
     Lf_mpm_m: float
-    Lf_gns_m: float
+    Lf_predicted_m: float
     runout_norm_mpm: float
-    runout_norm_gns: float
+    runout_norm_predicted: float
     ape_percent: float
     frames: int
-    gns_wall_s: float
+    predicted_wall_s: float
     mpm_key: str
 
 
@@ -69,18 +73,19 @@ def run_columns(model: Path, out: Path, grid: ColumnGrid, run: StudyContext) -> 
     columns = {a: model_scene(grid.examples, column_file(a), engine, run.log) for a in dict.fromkeys(grid.aspects)}
     scenes = [column_scene(columns[c.aspect], c, grid.frames, grid.scale) for c in cases]
     mpm_dirs = run.cache.ensure(scenes, run.device, run.progress)
+    label = engine_label(engine)
     rows = []
-    for case, scene, mpm_dir in tqdm(list(zip(cases, scenes, mpm_dirs)), desc=f"{engine_label(engine)} columns", disable=not run.progress):
+    for case, scene, mpm_dir in tqdm(list(zip(cases, scenes, mpm_dirs)), desc=f"{label} columns", disable=not run.progress):
         truth = load_trajectory(mpm_dir)
         start = time.perf_counter()
         predicted = engine.rollout_trajectory(truth, truth.n_frames, stop_speed=None)
         wall = time.perf_counter() - start
-        save_trajectory(predicted, folder / "gns" / case.name, engine.material_width)
+        save_trajectory(predicted, folder / PREDICTED / case.name, engine.material_width)
         truth, predicted = at_common_times(truth, predicted)  # the MPM at the engine's times (frame stride)
         rows.append(case_result(case, truth, predicted, scene.domain.point_spacing / 2, wall, mpm_dir.name))
     write_csv(rows, folder / "cases.csv")
     summary = summarise(rows, grid, model)
-    draw_outputs(rows, folder, run.cache, scenes)
+    draw_outputs(rows, folder, run.cache, scenes, label)
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
 
@@ -88,11 +93,11 @@ def run_columns(model: Path, out: Path, grid: ColumnGrid, run: StudyContext) -> 
 def case_result(case: ColumnCase, truth: Trajectory, predicted: Trajectory, edge: float, wall: float, key: str) -> ColumnResult:
     """edge: half the point spacing (m), added to the largest x to get the material's front."""
     l0 = runout_front(truth, 0) + edge
-    lf_mpm, lf_gns = runout_front(truth, -1) + edge, runout_front(predicted, -1) + edge
-    n_mpm, n_gns = normalised_runout(l0, lf_mpm), normalised_runout(l0, lf_gns)
+    lf_mpm, lf_predicted = runout_front(truth, -1) + edge, runout_front(predicted, -1) + edge
+    n_mpm, n_predicted = normalised_runout(l0, lf_mpm), normalised_runout(l0, lf_predicted)
     return ColumnResult(
-        case.name, case.aspect, case.phi, case.cohesion, l0, lf_mpm, lf_gns, n_mpm, n_gns,
-        float(absolute_percentage_error(n_gns, n_mpm)), predicted.n_frames, wall, key,
+        case.name, case.aspect, case.phi, case.cohesion, l0, lf_mpm, lf_predicted, n_mpm, n_predicted,
+        float(absolute_percentage_error(n_predicted, n_mpm)), predicted.n_frames, wall, key,
     )
 
 
@@ -116,7 +121,7 @@ def aspect_statistics(rows: list[ColumnResult]) -> list[dict]:
             "cases": len(group),
             "mean_ape_percent": float(np.nanmean(ape)),
             "cv_ape": coefficient_of_variation(ape) if len(group) > 1 else float("nan"),
-            "r2": r_squared([r.runout_norm_gns for r in group], [r.runout_norm_mpm for r in group]),
+            "r2": r_squared([r.runout_norm_predicted for r in group], [r.runout_norm_mpm for r in group]),
         })
     return stats
 
@@ -139,13 +144,14 @@ def summarise(rows: list[ColumnResult], grid: ColumnGrid, model: Path) -> dict:
         "median_ape_percent": float(np.nanmedian(ape)),
         "by_aspect": aspect_statistics(rows),
         "percentile_cases": {str(q): asdict(r) for q, r in percentile_cases(rows).items()},
-        "gns_wall_s_total": float(sum(r.gns_wall_s for r in rows)),
+        "predicted_wall_s_total": float(sum(r.predicted_wall_s for r in rows)),
     }
 
 
-def draw_outputs(rows: list[ColumnResult], folder: Path, cache: MpmCache, scenes) -> None:
+def draw_outputs(rows: list[ColumnResult], folder: Path, cache: MpmCache, scenes, label: str) -> None:
+    """label: the engine's name in the figures (GNS, neural MPM)."""
     stats = aspect_statistics(rows)
-    draw_runout_comparison(rows, stats, folder / "runout_1to1.png")
+    draw_runout_comparison(rows, stats, folder / "runout_1to1.png", label)
     draw_error_heatmaps(rows, stats, folder / "error_heatmaps.png")
     by_name = {s.name: s for s in scenes}
     drawn: dict[str, Path] = {}  # a case at two percentiles (few cases) is drawn once
@@ -155,5 +161,5 @@ def draw_outputs(rows: list[ColumnResult], folder: Path, cache: MpmCache, scenes
             shutil.copyfile(drawn[row.case], path)
             continue
         truth = cache.load(by_name[row.case], progress=False)
-        draw_evolution(*at_common_times(truth, load_trajectory(folder / "gns" / row.case)), row, q, path)
+        draw_evolution(*at_common_times(truth, load_trajectory(folder / PREDICTED / row.case)), row, q, path, label)
         drawn[row.case] = path

@@ -1,14 +1,15 @@
 """Velocity- and physical-space error diagnostics of one column case (paper §5.1.1).
 
-At chosen frames (80, 200 and the last), each soil point's GNS velocity v_pred and MPM
-velocity v_true (m/s, over the frame interval ending there) give the error |v_pred - v_true|.
-The training velocity distribution is the model's own normalisation statistics (vel_mean,
+At chosen frames (80, 200 and the last), each soil point's velocity v_pred in the learned
+engine's run (GNS or neural MPM) and its MPM velocity v_true (m/s, over the frame interval
+ending there) give the error |v_pred - v_true|. The training velocity distribution is the model's own normalisation statistics (vel_mean,
 vel_std in m per model step, converted to m/s); a point lies outside the k-sigma ellipse when
 ((v_x - m_x) / s_x)^2 + ((v_y - m_y) / s_y)^2 > k^2 (the statistics are per axis, so the
 ellipses are axis-aligned).
 
-Writes OUT/diagnostics/: summary.json and velocity_diagnostics.png (rows: velocity space
-coloured by error, positions coloured by error, positions coloured by speed).
+Writes OUT/diagnostics/: summary.json, velocity_diagnostics.png (rows: velocity space
+coloured by error, positions coloured by error, positions coloured by speed) and predicted/
+(the engine's trajectory).
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from runout.evaluate.diagnostics_figures import draw_diagnostics
 from runout.evaluate.model_card import model_card
 from runout.evaluate.scenes import EXAMPLES, column_file, column_scene, model_scene
 from runout.evaluate.study_settings import PAPER_CASE, ColumnCase  # noqa: F401  (PAPER_CASE re-exported)
+from runout.learned.engine import engine_label
 from runout.learned.load import load_engine
 from runout.metrics import at_common_times, velocities
 from runout.trajectory import Trajectory, save_trajectory
@@ -81,11 +83,11 @@ def run_diagnostics(model: Path, out: Path, run: StudyContext, case: ColumnCase 
     scene = column_scene(column, case, frames, scale)
     truth = run.cache.load(scene, run.device, run.progress)
     predicted = engine.rollout_trajectory(truth, truth.n_frames, stop_speed=None, progress=run.progress)
-    save_trajectory(predicted, folder / "gns", engine.material_width)
+    save_trajectory(predicted, folder / "predicted", engine.material_width)
     truth, predicted = at_common_times(truth, predicted)  # the MPM at the engine's times (frame stride)
     mean, std = training_velocity(engine, predicted.frame_dt)
     chosen = diagnostic_frames(truth.n_frames, engine.frame_stride)
-    draw_diagnostics(truth, predicted, chosen, mean, std, case, folder / "velocity_diagnostics.png")
+    draw_diagnostics(truth, predicted, chosen, mean, std, case, folder / "velocity_diagnostics.png", engine_label(engine))
     summary = {
         "study": "diagnostics",
         "model": model_card(model).to_dict(),

@@ -4,13 +4,14 @@ pilot and campaign chunk (docs/training.md).
 
 Per scene, at the times the two trajectories share (runout.metrics.at_common_times):
 
-- position error (m): the distance between GNS and MPM positions of every soil point, averaged
-  over every point and shared frame;
+- position error (m): the distance between the engine's and the MPM's positions of every soil
+  point, averaged over every point and shared frame;
 - front error: for each side (the leftmost and the rightmost soil point at the last shared
-  frame) |x_GNS - x_MPM| over the MPM front's travel from frame 0, for the sides whose front
+  frame) |x_predicted - x_MPM| over the MPM front's travel from frame 0, for the sides whose front
   travels more than MIN_TRAVEL_SPACINGS point spacings (standing still scores 1 on every one);
-- extent runout error: |L_GNS - L_MPM| / L_MPM of the soil's horizontal extent at the last frame;
-- mean displacement (m) of the soil at the last frame, GNS and MPM.
+- extent runout error: |L_predicted - L_MPM| / L_MPM of the soil's horizontal extent at the last
+  frame;
+- mean displacement (m) of the soil at the last frame, the engine's and the MPM's.
 
 `score` averages them over the scenes; `evaluate_heldout` also averages them by kind of scene
 (`by_kind`): the dataset's family of each scene (metadata.json's scene_families through its

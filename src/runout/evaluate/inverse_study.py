@@ -5,17 +5,18 @@ The parameters, bounds and loss come from examples/dam_inverse.toml (the paper's
 c1 in [10, 100] kPa, c2 in [99, 101] kPa, phi3 in [5, 50] degrees); this study only points
 its target at the cached MPM run of examples/dam.toml and calls `runout.inverse.invert`.
 The model loss is the MSE between the normalised true and inferred parameters. The target
-is an MPM run of the dam at the model's point spacing, the spacing the inverse rolls the GNS
-out at.
+is an MPM run of the dam at the model's point spacing, the spacing the inverse rolls the
+learned engine (GNS or neural MPM) out at.
 
 The same spec is then solved through the MPM itself (`--engine mpm-ad`, reverse-mode AD through
 the solver) as the yardstick: the same target, start, bounds and optimiser, so the two engines'
 answers and their seconds per L-BFGS-B iteration stand side by side (paper §5.2 compares the
-GNS's inverse with the MPM's in accuracy and cost).
+GNS's inverse with the MPM's in accuracy and cost; here the learned engine is whichever the
+model file holds).
 
 Writes OUT/inverse/: scene.toml and spec.toml (the problem solved), target.png (initial
 geometry, MPM deposit, its displacement), run/ (history.json, history.csv, loss.png,
-parameters.png, deposit.png from the inverse module, GNS), run_mpm_ad/ (the same, MPM-AD;
+parameters.png, deposit.png from the inverse module, the learned engine), run_mpm_ad/ (the same, MPM-AD;
 unless yardstick=False) and summary.json.
 """
 
@@ -46,10 +47,11 @@ YARDSTICK_RUN = "run_mpm_ad"
 
 def run_inverse(model: Path, out: Path, run: StudyContext, examples: Path = EXAMPLES, frames: int | None = None,
                 scale: float = 1.0, max_iterations: int | None = None, log=None, yardstick: bool = True) -> dict:
-    """Run the study (the GNS, then the MPM-AD yardstick unless `yardstick` is False); returns
-    the summary written to OUT/inverse/summary.json."""
+    """Run the study (the learned engine, then the MPM-AD yardstick unless `yardstick` is False);
+    returns the summary written to OUT/inverse/summary.json."""
     folder = Path(out) / "inverse"
-    scene = scaled(model_scene(examples, DAM_SCENE, load_engine(model, run.device), run.log), scale)
+    engine = load_engine(model, run.device)
+    scene = scaled(model_scene(examples, DAM_SCENE, engine, run.log), scale)
     scene = scene.with_frames(frames) if frames is not None else scene
     target = run.cache.ensure([scene], run.device, run.progress)[0]
     folder.mkdir(parents=True, exist_ok=True)
@@ -59,7 +61,7 @@ def run_inverse(model: Path, out: Path, run: StudyContext, examples: Path = EXAM
     result = invert(folder / "spec.toml", folder / "run", model=model, device=run.device, log=log)
     draw_target(load_trajectory(target), folder / "target.png")
     summary = summarise(result, model)
-    summary.update(scale=scale, frames=scene.time.frames, engine="gns")
+    summary.update(scale=scale, frames=scene.time.frames, engine=engine.name)
     if yardstick:
         if log:
             log(f"the yardstick: the same inverse through the MPM ({YARDSTICK})")

@@ -7,6 +7,7 @@ import hashlib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from runout.learned.engine import LABELS
 from runout.learned.load import engine_name
 
 
@@ -21,19 +22,23 @@ class ModelCard:
     material_features: list[str]
     parameters: int
     network: dict
-    frame_stride: int = 1  # dataset frames per GNS step (summaries written before it: 1)
+    frame_stride: int = 1  # dataset frames per engine step (summaries written before it: 1)
     engine: str = "gns"  # the learned engine (summaries written before the neural MPM: gns)
 
     def to_dict(self) -> dict:
         return asdict(self)
+
+    @property
+    def label(self) -> str:
+        """The engine's name in lines, tables and pictures: GNS, neural MPM."""
+        return LABELS.get(self.engine, self.engine)
 
     def sentence(self) -> str:
         trained = "untrained (saved without a training run)" if self.steps is None else f"{self.steps:,} training steps"
         stride = f", frame stride {self.frame_stride}" if self.frame_stride > 1 else ""
         base = f" after {self.base_steps:,} base steps" if self.base_steps else ""
         data = f" on {self.training_data}" if self.training_data else ""
-        engine = "neural MPM" if self.engine == "neural-mpm" else "GNS"
-        return (f"`{self.path}` ({engine}, sha256 {self.sha256}…, {self.parameters:,} parameters, material inputs "
+        return (f"`{self.path}` ({self.label}, sha256 {self.sha256}…, {self.parameters:,} parameters, material inputs "
                 f"[{', '.join(self.material_features)}]{stride}): {trained}{base}{data}.")
 
 

@@ -1,5 +1,10 @@
 """docs/results.md from the studies' outputs: tables from each OUT/<study>/summary.json and
-the figures copied beside the page, with the model and its training named in every section.
+the figures copied beside the page, with the model and its training named in every section,
+and the learned engine that ran (the model card's: GNS or neural MPM) in every label.
+
+Summaries written before the keys named no engine (docs/results.md was made from some) say gns
+where new ones say predicted (`Lf_gns_m`, `runout_norm_gns`, `gns_wall_s_total`, the slope's
+`gns`, `gns_device`, `gns_host`); `_predicted` reads either.
 """
 
 from __future__ import annotations
@@ -48,8 +53,9 @@ def write_report(out: Path, doc: Path) -> Path:
         if study not in summaries:
             lines.append(f"Not run (`runout evaluate {study}`).")
             continue
-        lines += [f"Model: {ModelCard(**summaries[study]['model']).sentence()}", ""]
-        lines += SECTIONS[study](summaries[study])
+        card = ModelCard(**summaries[study]["model"])
+        lines += [f"Model: {card.sentence()}", ""]
+        lines += SECTIONS[study](summaries[study], card.label)
         lines += _figures(Path(out) / study, study, figures, doc.parent)
     doc.parent.mkdir(parents=True, exist_ok=True)
     doc.write_text("\n".join(lines) + "\n")
@@ -81,18 +87,25 @@ def _cell(value) -> str:
     return str(value)
 
 
-def _columns(s: dict) -> list[str]:
+def _predicted(values: dict, key: str):
+    """values[key], a key that says predicted, or, in a summary written before the keys named no
+    engine, the key that said gns in its place."""
+    return values[key] if key in values else values[key.replace("predicted", "gns")]
+
+
+def _columns(s: dict, label: str) -> list[str]:
     g = s["grid"]
     setup = (f"{s['cases']} cases: a ∈ {g['aspects']}, φ ∈ {g['phis_deg']}°, c ∈ {g['cohesions_kpa']} kPa, "
              f"{g['frames']} frames, geometry scale {g['scale']:g}{_shrunk(g['scale'])}.")
     lines = [setup, "", f"Mean absolute percentage error of L^n {s['mean_ape_percent']:.2f} %, median "
-             f"{s['median_ape_percent']:.2f} %; GNS wall time for all cases {s['gns_wall_s_total']:.1f} s.", ""]
+             f"{s['median_ape_percent']:.2f} %; {label} wall time for all cases {_predicted(s, 'predicted_wall_s_total'):.1f} s.", ""]
     lines += _table(["aspect a", "cases", "mean error (%)", "paper (%)", "CV", "R²", "paper R²"],
                     [[b["aspect"], b["cases"], b["mean_ape_percent"], _paper_column(b["aspect"], g["scale"], 0), b["cv_ape"], b["r2"],
                       _paper_column(b["aspect"], g["scale"], 1)] for b in s["by_aspect"]])
     lines += ["", "Cases at the 25th, 50th and 75th error percentiles:", ""]
-    lines += _table(["percentile", "a", "φ (°)", "c (kPa)", "L^n MPM", "L^n GNS", "error (%)"],
-                    [[q, r["aspect"], r["phi_deg"], r["cohesion_kpa"], r["runout_norm_mpm"], r["runout_norm_gns"], r["ape_percent"]]
+    lines += _table(["percentile", "a", "φ (°)", "c (kPa)", "L^n MPM", f"L^n {label}", "error (%)"],
+                    [[q, r["aspect"], r["phi_deg"], r["cohesion_kpa"], r["runout_norm_mpm"],
+                      _predicted(r, "runout_norm_predicted"), r["ape_percent"]]
                      for q, r in s["percentile_cases"].items()])
     return lines
 
@@ -102,25 +115,27 @@ def _paper_column(aspect: float, scale: float, k: int) -> float | None:
     return PAPER_COLUMNS[aspect][k] if aspect in PAPER_COLUMNS and scale == 1 else None
 
 
-def _slope(s: dict) -> list[str]:
+def _slope(s: dict, label: str) -> list[str]:
     w = s["wall_time_s"]
     lines = [f"{s['points']} soil points, {s['frames']} frames, geometry scale {s['scale']:g}{_shrunk(s['scale'])}; "
              f"runout measured from x = {s['centre_m']:g} m.", ""]
-    lines += _table(["side", "MPM (m)", "GNS (m)", "error (%)", "paper (%)"],
-                    [[side, s[key]["mpm"], s[key]["gns"], s[key]["ape_percent"], PAPER_SLOPE[side] if s["scale"] == 1 else None]
+    lines += _table(["side", "MPM (m)", f"{label} (m)", "error (%)", "paper (%)"],
+                    [[side, s[key]["mpm"], _predicted(s[key], "predicted"), s[key]["ape_percent"],
+                      PAPER_SLOPE[side] if s["scale"] == 1 else None]
                      for side, key in (("left", "runout_left_m"), ("right", "runout_right_m"))])
     lines += ["", f"Displacement error at the last frame: median {s['median_displacement_error_final_m']:.3g} m, "
               f"largest {s['max_displacement_error_final_m']:.3g} m.", "",
               f"Wall time: MPM {_cell(w['mpm'])} s ({w['mpm_device']} on {w['mpm_host']}, batch of {w['mpm_batch_size']}), "
-              f"GNS {w['gns']:.4g} s ({w['gns_device']} on {w['gns_host']})."]
+              f"{label} {_predicted(w, 'predicted'):.4g} s ({_predicted(w, 'predicted_device')} on {_predicted(w, 'predicted_host')})."]
     return lines
 
 
-def _diagnostics(s: dict) -> list[str]:
+def _diagnostics(s: dict, label: str) -> list[str]:
     c = s["case"]
     lines = [f"Case a = {c['aspect']:g}, φ = {c['phi_deg']:g}°, c = {c['cohesion_kpa']:g} kPa, {c['frames']} frames, "
              f"geometry scale {c['scale']:g}{_shrunk(c['scale'])}. Training velocity mean {_pair(s['training_velocity_m_s']['mean'])} m/s, "
              f"std {_pair(s['training_velocity_m_s']['std'])} m/s.", ""]
+    lines += [f"Velocity errors of the {label} against the MPM:", ""]
     lines += _table(["frame", "median error (m/s)", "90th pct (m/s)", "share outside 2σ", "mean error inside 2σ",
                      "mean error outside 2σ", "corr(speed, error)"],
                     [[f["frame"], f["median_error_m_s"], f["p90_error_m_s"], f["share_outside_2sigma"],
@@ -137,12 +152,12 @@ def _pair(v) -> str:
     return f"({v[0]:.3g}, {v[1]:.3g})"
 
 
-def _inverse(s: dict) -> list[str]:
+def _inverse(s: dict, label: str) -> list[str]:
     lines = [f"Target: MPM run of the dam, {s['frames']} frames, geometry scale {s['scale']:g}{_shrunk(s['scale'])}; "
              f"{s['iterations']} L-BFGS-B iterations ({s['evaluations']} evaluations, {s['message']}); "
              f"final data loss {s['final_data_loss_m2']:.4g} m².", ""]
     yardstick = s.get("yardstick")
-    header = ["parameter", "unit", "bounds", "initial", "true", "inferred (GNS)", "paper (GNS)"]
+    header = ["parameter", "unit", "bounds", "initial", "true", f"inferred ({label})", "paper (GNS)"]
     rows = [[p["name"], p["unit"], f"[{p['lower']:g}, {p['upper']:g}]", p["initial"], p["true"], p["inferred"],
              PAPER_INVERSE.get(p["name"]) if s["scale"] == 1 else None] for p in s["parameters"]]
     if yardstick is not None:
@@ -150,7 +165,7 @@ def _inverse(s: dict) -> list[str]:
         rows = [row + [y["inferred"]] for row, y in zip(rows, yardstick["parameters"])]
     lines += _table(header, rows)
     if "seconds_per_iteration" in s:
-        lines += ["", f"Cost on this machine: GNS {s['seconds_per_iteration']:.3g} s per L-BFGS-B iteration "
+        lines += ["", f"Cost on this machine: {label} {s['seconds_per_iteration']:.3g} s per L-BFGS-B iteration "
                   f"({s['seconds']:.4g} s for {s['evaluations']} evaluations)"
                   + ("." if yardstick is None else
                      f"; the yardstick through the MPM itself (MPM-AD) {yardstick['seconds_per_iteration']:.3g} s per "
@@ -158,14 +173,14 @@ def _inverse(s: dict) -> list[str]:
                      f"{yardstick['iterations']} iterations, final data loss {yardstick['final_data_loss_m2']:.4g} m²; "
                      f"{yardstick['message']}).")
                   + f" The paper's GNS inverse took about {PAPER_INVERSE_SECONDS:g} s per iteration on an NVIDIA Quadro RTX 5000 GPU."]
-    lines += ["", "Per iteration (GNS):", ""]
+    lines += ["", f"Per iteration ({label}):", ""]
     lines += _table(["iteration", "data loss (m²)", "model loss", "values"],
                     [[h["iteration"], h["data_loss_m2"], h["model_loss"], ", ".join(f"{v:.4g}" for v in h["values"])]
                      for h in s["history"]])
     return lines
 
 
-def _sensitivity(s: dict) -> list[str]:
+def _sensitivity(s: dict, label: str) -> list[str]:
     lines = [f"Subsets of {s['data']} fine-tuned from the model above; rollout MSE on the first held-out "
              f"simulations of its {s['split']} split; {_budgets(s)}.", ""]
     lines += _table(["budget", "N", "steps", "median MSE (m²)", "25th pct", "75th pct", "held-out"],

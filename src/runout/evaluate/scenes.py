@@ -2,7 +2,7 @@
 optionally shrunk.
 
 Every study fills its scenes at the spacing the model was trained at (model_scene, through
-runout.gns.rollout.at_model_spacing), and the MPM reference runs on those same scenes, so
+runout.learned.scenes.at_model_spacing), and the MPM reference runs on those same scenes, so
 both engines see the same points at the same resolution. `--scale s` then shrinks a
 scene's domain and polygons by s (cell size and point spacing stay), so the same study runs
 on a few hundred points in a test; scale 1 is the paper's geometry.

@@ -1,5 +1,5 @@
-"""Data-size study (paper §6): fine-tune subsets of N training simulations from one model,
-under a fixed step budget and under a fixed epoch budget (either or both), and measure rollout errors on
+"""Data-size study (paper §6): fine-tune subsets of N training simulations from one GNS model
+(it trains GNS checkpoints only, through runout.train; a neural MPM's --init is refused), under a fixed step budget and under a fixed epoch budget (either or both), and measure rollout errors on
 held-out simulations.
 
 A subset is the first N simulations of DATA/train.npz (with the full set's metadata, so
@@ -36,15 +36,25 @@ from runout.evaluate.study_settings import BUDGETS, PAPER_SIZES, SensitivityConf
 from runout.gns.checkpoint import load_simulator
 from runout.gns.rollout import rollout_trajectory
 from runout.gns.windows import TrainingWindows
+from runout.learned.engine import LABELS
+from runout.learned.load import engine_name
 from runout.metrics import position_mse
 from runout.simfiles import iter_simulations, read_metadata, write_simulations
 from runout.train import CHECKPOINT, TrainConfig, continued_onset, cpu_has_native_bf16, train
 
 
+def check_init(init: Path) -> None:
+    """InputError unless `init` holds a GNS: the study fine-tunes through runout.train, the GNS's loop."""
+    name = engine_name(init)
+    if name != "gns":
+        raise InputError(f"--init {init}: holds a {LABELS.get(name, name)}, but the data-size study fine-tunes "
+                         "GNS checkpoints only; give a GNS checkpoint.")
+
 
 def run_sensitivity(cfg: SensitivityConfig, out: Path) -> dict:
     """Run the study; returns the summary written to OUT/sensitivity/summary.json."""
     cfg.check()
+    check_init(cfg.init)
     folder = Path(out) / "sensitivity"
     held_out = list(split_trajectories(cfg.data, cfg.split, cfg.held_out))
     schema = load_simulator(cfg.init).schema  # every subset is fine-tuned at the model's history and stride

@@ -1,14 +1,16 @@
 """Four-layer slope study (paper §5.1.2): runout on each side of the centre line, material
-and displacement fields side by side, displacement-error growth and the wall time of both
-engines.
+and displacement fields side by side, displacement-error growth and the wall time of the MPM
+and of the learned engine (GNS or neural MPM).
 
 Both engines run the scene at the model's point spacing. Runout on a side is the distance
 (m) from the mound's axis (x = 500 m, runout.metrics.mound_axis) to the outermost soil
-point; its error is |L_GNS - L_MPM| / L_MPM x 100 (%). The displacement error of a point is
-the distance (m) between its GNS and MPM positions at a frame.
+point; its error is |L_predicted - L_MPM| / L_MPM x 100 (%), "predicted" being the engine's.
+The displacement error of a point is the distance (m) between its predicted and MPM positions
+at a frame.
 
 Writes OUT/slope/: summary.json, fields_materials.png, fields_displacement.png,
-displacement_error.png and gns/ (the GNS trajectory).
+displacement_error.png and predicted/ (the engine's trajectory). Summaries written before the
+keys named no engine say gns where these say predicted (runout.evaluate.report reads both).
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from runout.evaluate.context import StudyContext
 from runout.evaluate.model_card import model_card
 from runout.evaluate.scenes import EXAMPLES, model_scene, scaled
 from runout.evaluate.slope_figures import draw_displacement_error, draw_fields
+from runout.learned.engine import engine_label
 from runout.learned.load import load_engine
 from runout.metrics import absolute_percentage_error, at_common_times, displacement_error, mound_axis, side_runouts
 from runout.trajectory import Trajectory, save_trajectory
@@ -50,21 +53,23 @@ def run_slope(model: Path, out: Path, run: StudyContext, examples: Path = EXAMPL
     truth = run.cache.load(scene, run.device, run.progress)
     start = time.perf_counter()
     predicted = engine.rollout_trajectory(truth, truth.n_frames, stop_speed=None, progress=run.progress)
-    gns_wall = time.perf_counter() - start
-    save_trajectory(predicted, folder / "gns", engine.material_width)
+    wall = time.perf_counter() - start
+    save_trajectory(predicted, folder / "predicted", engine.material_width)
     truth, predicted = at_common_times(truth, predicted)  # the MPM at the engine's times (frame stride)
-    summary = summarise(truth, predicted, mound_axis(truth), gns_wall, run.device, model)
+    summary = summarise(truth, predicted, mound_axis(truth), wall, run.device, model)
     summary["scale"] = scale
-    draw_fields(truth, predicted, snapshot_frames(truth.n_frames, engine.frame_stride), folder)
-    draw_displacement_error(truth, predicted, folder / "displacement_error.png")
+    label = engine_label(engine)
+    draw_fields(truth, predicted, snapshot_frames(truth.n_frames, engine.frame_stride), folder, label)
+    draw_displacement_error(truth, predicted, folder / "displacement_error.png", label)
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
 
 
-def summarise(truth: Trajectory, predicted: Trajectory, centre: float, gns_wall: float, device: str, model: Path) -> dict:
-    """centre: x (m) of the mound's axis, where the two sides' runouts are measured from."""
+def summarise(truth: Trajectory, predicted: Trajectory, centre: float, wall: float, device: str, model: Path) -> dict:
+    """centre: x (m) of the mound's axis, where the two sides' runouts are measured from;
+    wall: the engine's rollout time (s) on `device`."""
     mpm_left, mpm_right = side_runouts(truth, centre)
-    gns_left, gns_right = side_runouts(predicted, centre)
+    left, right = side_runouts(predicted, centre)
     error = displacement_error(predicted, truth)  # [T, S] m
     info = truth.info
     return {
@@ -73,14 +78,14 @@ def summarise(truth: Trajectory, predicted: Trajectory, centre: float, gns_wall:
         "frames": predicted.n_frames,
         "points": int(truth.soil.sum()),
         "centre_m": centre,
-        "runout_left_m": {"mpm": mpm_left, "gns": gns_left, "ape_percent": float(absolute_percentage_error(gns_left, mpm_left))},
-        "runout_right_m": {"mpm": mpm_right, "gns": gns_right, "ape_percent": float(absolute_percentage_error(gns_right, mpm_right))},
+        "runout_left_m": {"mpm": mpm_left, "predicted": left, "ape_percent": float(absolute_percentage_error(left, mpm_left))},
+        "runout_right_m": {"mpm": mpm_right, "predicted": right, "ape_percent": float(absolute_percentage_error(right, mpm_right))},
         "median_displacement_error_final_m": float(np.median(error[-1])),
         "max_displacement_error_final_m": float(error[-1].max()),
         "wall_time_s": {
             "mpm": info.get("wall_time_s"), "mpm_batch_size": info.get("batch_size"),
             "mpm_device": info.get("device"), "mpm_host": info.get("host"),
-            "gns": gns_wall, "gns_device": str(device), "gns_host": platform.node(),
+            "predicted": wall, "predicted_device": str(device), "predicted_host": platform.node(),
         },
     }
 

@@ -25,8 +25,9 @@ def _extent(truth: Trajectory, predicted: Trajectory) -> tuple[tuple[float, floa
     return (lo[0] - pad, hi[0] + pad), (0.0, hi[1] + pad)
 
 
-def draw_fields(truth: Trajectory, predicted: Trajectory, frames: list[int], folder: Path) -> None:
-    """fields_materials.png and fields_displacement.png: MPM (left) beside GNS (right)."""
+def draw_fields(truth: Trajectory, predicted: Trajectory, frames: list[int], folder: Path, label: str) -> None:
+    """fields_materials.png and fields_displacement.png: MPM (left) beside the engine named
+    `label` (right)."""
     xlim, ylim = _extent(truth, predicted)
     vmax = max(float(final_displacement(truth).max()), float(final_displacement(predicted).max()), 1e-6)
     for kind in ("materials", "displacement"):
@@ -36,7 +37,7 @@ def draw_fields(truth: Trajectory, predicted: Trajectory, frames: list[int], fol
         axes = fig.subplots(len(frames), 2, squeeze=False)
         mappable = None
         for row, frame in enumerate(frames):
-            for ax, traj, engine in ((axes[row, 0], truth, "MPM"), (axes[row, 1], predicted, "GNS")):
+            for ax, traj, engine in ((axes[row, 0], truth, "MPM"), (axes[row, 1], predicted, label)):
                 title = f"{engine}, frame {frame} (t = {frame * traj.frame_dt:.2f} s)"
                 if kind == "materials":
                     draw_materials(ax, traj, frame, title, legend=row == 0 and engine == "MPM")
@@ -49,9 +50,9 @@ def draw_fields(truth: Trajectory, predicted: Trajectory, frames: list[int], fol
         _save(fig, folder / f"fields_{kind}.png")
 
 
-def draw_displacement_error(truth: Trajectory, predicted: Trajectory, path: Path, seed: int = 0) -> None:
+def draw_displacement_error(truth: Trajectory, predicted: Trajectory, path: Path, label: str, seed: int = 0) -> None:
     """Median displacement error over time (black dashed) and 100 random points' error
-    histories coloured by their final MPM displacement (m)."""
+    histories coloured by their final MPM displacement (m); label: the engine's name."""
     error = displacement_error(predicted, truth)  # [T, S] m
     moved = final_displacement(truth)  # [S] m
     time_s = np.arange(error.shape[0]) * truth.frame_dt
@@ -63,7 +64,7 @@ def draw_displacement_error(truth: Trajectory, predicted: Trajectory, path: Path
     for k in chosen:
         ax.plot(time_s, error[:, k], color=cmap(norm(moved[k])), lw=0.7, alpha=0.8)
     ax.plot(time_s, np.median(error, axis=1), "k--", lw=2.0, label="median over all points")
-    ax.set(xlabel="time (s)", ylabel="displacement error (m)", title="GNS displacement error against the MPM")
+    ax.set(xlabel="time (s)", ylabel="displacement error (m)", title=f"{label} displacement error against the MPM")
     ax.legend(loc="upper left")
     fig.colorbar(ScalarMappable(norm, cmap), ax=ax, label="final displacement, MPM (m)")
     _save(fig, path)
