@@ -173,7 +173,7 @@ class Trainer:
 
     @property
     def ending(self) -> bool:
-        """Whether this step is the run's last: the final step, or a stop asked for before the hooks ran."""
+        """Whether this step is the run's last: the final step, or a stop asked for (a signal, the budget, a hook)."""
         return self.done == self.steps or self.interrupted or self.stop_reason is not None
 
     @property
