@@ -3,7 +3,7 @@ memory for the U-Net's convolutions, torch.compile of the U-Net, bfloat16 autoca
 where the CPU has native bf16: avx512_bf16 or AMX; on an AVX2-only CPU it is emulated and
 slower), and K (chained calls per loss).
 
-Each configuration runs the real training step (runout.neural_mpm.training.Run.take_step) on
+Each configuration runs the real training step (runout.neural_mpm.training.Run.step) on
 real windows of a dataset (default data/ft8, batch 8, m = 8, 8 m cells) after --warmup
 steps (compilation included there) and prints steps per wall-second and per CPU-second of
 the process (CPU time on every thread: the pilots' budget). Measure on a quiet machine; on a
@@ -48,11 +48,11 @@ def measure(data: str, kind: str, threads: int, calls: int, steps: int, warmup: 
         run.engine.net = torch.compile(run.engine.net, dynamic=False)
     autocast = torch.autocast("cpu", dtype=torch.bfloat16) if "bf16" in tokens else nullcontext()
     with autocast:
-        for _ in range(warmup):
-            run.take_step()
+        for step in range(warmup):
+            run.step(step)
         wall, cpu = time.perf_counter(), time.process_time()
-        for _ in range(steps):
-            run.take_step()
+        for step in range(warmup, warmup + steps):
+            run.step(step)
         wall, cpu = time.perf_counter() - wall, time.process_time() - cpu
     return {"config": kind, "threads": threads, "calls": calls, "cell_m": cell, "steps": steps,
             "steps_per_wall_s": steps / wall, "steps_per_cpu_s": steps / cpu}

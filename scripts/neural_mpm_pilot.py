@@ -5,25 +5,25 @@ under a CPU-time budget, then judge it from rest on held-out scenes.
     python scripts/neural_mpm_pilot.py --out runs/nmpm-p1 --resume --max-cpu-hours 4
     python scripts/neural_mpm_pilot.py --data data/ft8,data/col8 --data-shares 3,1 --out runs/nmpm-cols --calls 3
 
-Engine settings (cell size, m, history, widths) apply to a new run only; a resumed run keeps
-its checkpoint's.
+The pilots' options, each passed on to `runout train --engine neural-mpm` (the same run;
+--mirror-share is its --mirror, --valid-count its --valid-trajectories), with the pilots'
+defaults. Engine settings (cell size, m, history, widths) apply to a new run only; a resumed
+run keeps its checkpoint's, and its learning-rate schedule unless --lr-decay-steps is given.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 from dataclasses import fields
-from pathlib import Path
 
-from runout.neural_mpm.engine import NeuralMPMConfig
-from runout.neural_mpm.training import TrainSettings, datasets, train
+from runout.cli import main as runout
+from runout.train_settings import NEURAL_MPM_OPTIONS, NeuralMPMConfig, NeuralMPMSettings
 
 
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    for f in fields(TrainSettings):
-        if f.type in ("bool",) or isinstance(f.default, bool):
+    for f in fields(NeuralMPMSettings):
+        if isinstance(f.default, bool):
             p.add_argument(f"--{f.name.replace('_', '-')}", action=argparse.BooleanOptionalAction, default=f.default)
         else:
             kind = {"int": int, "float": float, "str": str}.get(str(f.type).split(" ")[0], float)
@@ -34,16 +34,15 @@ def main() -> None:
     p.add_argument("--widths", type=str, default=",".join(map(str, NeuralMPMConfig.widths)))
     p.add_argument("--resume", action="store_true")
     a = p.parse_args()
-    settings = TrainSettings(**{f.name: getattr(a, f.name) for f in fields(TrainSettings)})
-    config = NeuralMPMConfig(cell_size=a.cell_size, history=a.history, frames_per_call=a.frames_per_call,
-                             widths=tuple(int(w) for w in a.widths.split(",")),
-                             point_spacing=_spacing(Path(datasets(settings)[0])))
-    train(settings, config, resume=a.resume)
-
-
-def _spacing(data: Path) -> float:
-    meta = json.loads((data / "metadata.json").read_text())
-    return float(meta.get("point_spacing", meta.get("cell_size", 8.0) / 2))
+    args = ["train", "--engine", "neural-mpm"] + (["--resume"] if a.resume else [])
+    for name in [f.name for f in fields(NeuralMPMSettings)] + ["cell_size", "history", "frames_per_call", "widths"]:
+        value = getattr(a, name)
+        option = NEURAL_MPM_OPTIONS.get(name, "--" + name.replace("_", "-"))
+        if isinstance(value, bool):
+            args.append(option if value else "--no-" + option[2:])
+        elif value is not None:
+            args += [option, str(value)]
+    runout(args)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,8 @@ LAYERS = (
     ("views", ("runout.plots", "runout.vtk")),
     ("applications", ("runout.families", "runout.train", "runout.train_settings", "runout.inverse", "runout.evaluate", "runout.compare",
                       "runout.generate", "runout.demo", "runout.validate", "runout.validate_figures", "runout.mpm_run",
-                      "runout.rollout_run", "runout.neural_mpm.training", "runout.hazard", "runout.average")),
+                      "runout.rollout_run", "runout.training", "runout.neural_mpm.training", "runout.neural_mpm.settings",
+                      "runout.hazard", "runout.average")),
     ("cli", ("runout.cli", "runout.__main__")),
 )
 

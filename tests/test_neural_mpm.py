@@ -246,3 +246,121 @@ def test_two_datasets_train_together_each_batch_from_one_domain(column, tmp_path
     assert ranges["friction_angle_deg"] == pytest.approx([20.0, 20.0], abs=1e-4)
     assert "narrow" in ranges["source"] and "wide" in ranges["source"]
 
+
+
+# ----------------------------------------------------------------------------- `runout train --engine neural-mpm`
+TINY_OPTIONS = ["--engine", "neural-mpm", "--batch-size", "2", "--valid-every", "0", "--log-every", "1", "--no-progress",
+                "--cell-size", "8", "--history", "2", "--frames-per-call", "4", "--widths", "8,16"]
+
+
+def runout_train(argv, capsys) -> tuple[int, str]:
+    """Exit code and output (stdout and stderr) of `runout train ARGV` in this process."""
+    from runout.cli import main
+
+    try:
+        main(["train", *map(str, argv)])
+        code = 0
+    except SystemExit as done:
+        code = done.code
+    said = capsys.readouterr()
+    return code, said.out + said.err
+
+
+def logged(out: Path, key: str) -> list:
+    import json
+
+    rows = [json.loads(line) for line in (out / "train.log.jsonl").read_text().splitlines()]
+    return [row[key] for row in rows if row["event"] == "loss"]
+
+
+def weights(out: Path) -> dict:
+    return torch.load(out / CHECKPOINT, weights_only=True)["model"]
+
+
+def test_a_run_of_runout_train_stopped_by_ctrl_c_resumes_exactly(dataset, tmp_path, capsys, monkeypatch):
+    import os
+    import signal
+
+    from runout.neural_mpm.training import Run
+
+    argv = ["--data", dataset, "--steps", 6, *TINY_OPTIONS]
+    assert runout_train([*argv, "--out", tmp_path / "whole"], capsys)[0] == 0
+    real_step = Run.step
+
+    def step_then_ctrl_c(run, step):
+        loss = real_step(run, step)
+        if step == 1:
+            os.kill(os.getpid(), signal.SIGINT)  # a real Ctrl-C, in the middle of the run
+        return loss
+
+    monkeypatch.setattr(Run, "step", step_then_ctrl_c)
+    code, said = runout_train([*argv, "--out", tmp_path / "cut"], capsys)
+    assert code == 130 and "after step 2" in said and "--resume" in said
+    assert torch.load(tmp_path / "cut" / CHECKPOINT, weights_only=True)["step"] == 2
+    monkeypatch.setattr(Run, "step", real_step)
+    assert runout_train([*argv, "--out", tmp_path / "cut", "--resume"], capsys)[0] == 0
+    assert logged(tmp_path / "cut", "loss") == logged(tmp_path / "whole", "loss")  # the redone steps' rows once
+    whole, cut = weights(tmp_path / "whole"), weights(tmp_path / "cut")
+    assert all(torch.equal(whole[k], cut[k]) for k in whole)
+
+
+@pytest.mark.parametrize("argv, words", [
+    (["--cell-size", "4"], "--cell-size is an option of --engine neural-mpm only; leave it out to train the GNS."),
+    (["--max-cpu-hours", "1"], "--max-cpu-hours is an option of --engine neural-mpm only"),
+    (["--engine", "neural-mpm", "--pushforward", "2"], "--pushforward is an option of --engine gns only"),
+    (["--engine", "neural-mpm", "--device", "cpu"], "--device is an option of --engine gns only"),
+    (["--engine", "mpm"], "--engine = mpm must be one of gns, neural-mpm."),
+    (["--engine", "neural-mpm", "--calls", "0"], "--calls = 0 is outside the allowed range"),
+    (["--engine", "neural-mpm", "--widths", "32,x"], "--widths = 32,x must be whole numbers"),
+])
+def test_an_option_of_the_other_engine_or_out_of_range_is_one_sentence(tmp_path, capsys, argv, words):
+    from test_cli_exits import one_sentence
+
+    code, said = runout_train(["--data", tmp_path / "missing", "--out", tmp_path / "run", *argv], capsys)
+    assert code == 2 and words in said and one_sentence(said), said
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_fixed_decay_goes_on_across_a_resume_with_more_steps(dataset, tmp_path, capsys):
+    from runout.neural_mpm.training import learning_rate
+
+    common = ["--data", dataset, *TINY_OPTIONS, "--lr-decay-steps", 6]
+    runout_train([*common, "--out", tmp_path / "whole", "--steps", 6], capsys)
+    runout_train([*common, "--out", tmp_path / "chunks", "--steps", 3], capsys)
+    runout_train([*common, "--out", tmp_path / "chunks", "--steps", 6, "--resume"], capsys)
+    expected = [learning_rate(step, TrainSettings(steps=6, lr_decay_steps=6)) for step in range(6)]
+    assert logged(tmp_path / "chunks", "lr") == logged(tmp_path / "whole", "lr") == expected
+    whole, chunks = weights(tmp_path / "whole"), weights(tmp_path / "chunks")
+    assert all(torch.equal(whole[k], chunks[k]) for k in whole)
+
+
+def test_a_resumed_run_keeps_its_stored_decay_and_an_older_run_its_steps(dataset, tmp_path, capsys):
+    from runout.neural_mpm.training import learning_rate
+
+    out = tmp_path / "run"
+    runout_train(["--data", dataset, *TINY_OPTIONS, "--out", out, "--steps", 3], capsys)
+    code, said = runout_train(["--data", dataset, *TINY_OPTIONS, "--out", out, "--steps", 6, "--resume"], capsys)
+    assert code == 0 and "keeps its learning-rate schedule" in said and "over 3 steps" in said
+    assert logged(out, "lr")[3:] == [TrainSettings.lr_final] * 3  # the decay over, at lr_final
+    older = tmp_path / "older"  # a run from before lr_decay_steps: it decays over the --steps it is given
+    runout_train(["--data", dataset, *TINY_OPTIONS, "--out", older, "--steps", 3], capsys)
+    state = torch.load(older / CHECKPOINT, weights_only=True)
+    del state["train"]["lr_decay_steps"]
+    torch.save(state, older / CHECKPOINT)
+    runout_train(["--data", dataset, *TINY_OPTIONS, "--out", older, "--steps", 6, "--resume"], capsys)
+    assert logged(older, "lr")[3:] == [learning_rate(step, TrainSettings(steps=6)) for step in range(3, 6)]
+    assert torch.load(older / CHECKPOINT, weights_only=True)["train"]["lr_decay_steps"] == 6
+
+
+def test_the_pilot_script_trains_the_run_runout_train_does(dataset, tmp_path, capsys):
+    import subprocess
+    import sys
+
+    options = ["--data", str(dataset), "--steps", "3", "--batch-size", "2", "--valid-every", "0", "--no-progress",
+               "--cell-size", "8", "--history", "2", "--frames-per-call", "4", "--widths", "8,16", "--mirror-share", "0.25"]
+    env = {**__import__("os").environ, "PYTHONPATH": str(REPO / "src")}
+    subprocess.run([sys.executable, REPO / "scripts" / "neural_mpm_pilot.py", *options, "--out", tmp_path / "pilot"],
+                   check=True, env=env, capture_output=True)
+    runout_train(["--data", dataset, "--steps", 3, *TINY_OPTIONS, "--mirror", 0.25, "--out", tmp_path / "cli"], capsys)
+    pilot, cli = weights(tmp_path / "pilot"), weights(tmp_path / "cli")
+    assert all(torch.equal(pilot[k], cli[k]) for k in pilot)

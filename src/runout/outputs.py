@@ -70,7 +70,7 @@ KNOWN = {
     "validate": ("results.json", "validation.md", "cut_phi*.png", "column_*.png", "dry_column_*.png",
                  "griffiths_lane_*.png", "block_incline_*.png", "convergence_*.png"),
     "generate": ("generate.json", "scenes", "parts", "train.npz", "valid.npz", "test.npz", "metadata.json"),
-    "train": ("checkpoint.pt", "best.pt", "log.jsonl", "tensorboard"),
+    "train": ("checkpoint.pt", "best.pt", "log.jsonl", "train.log.jsonl", "tensorboard"),
     "invert": ("history.json", "history.csv", "loss.png", "parameters.png", "deposit.png", "deposits",
                "start_[0-9][0-9]", "starts.json", "starts.csv", "starts.png", "uncertainty.json", "profile.png"),
     "evaluate": ("columns", "slope", "diagnostics", "inverse", "sensitivity"),

@@ -1,4 +1,5 @@
-"""One GNS training loop for CPU, one GPU and many GPUs (torchrun + DistributedDataParallel).
+"""The GNS's training task, run by the one Trainer (runout.training.trainer) on CPU, one GPU
+and many GPUs (torchrun + DistributedDataParallel).
 
 Each step draws `batch_size` windows per process (at the frame stride: positions K frames
 apart; windows of a scene at rest included, runout.gns.windows), perturbs their input
@@ -14,21 +15,18 @@ the domain's centre with probability S (runout.gns.windows.mirrored). The random
 step come from generators seeded by (seed, step, rank), and n from one seeded by (seed, step)
 alone, so every process unrolls as many steps, and a run resumed from any checkpoint repeats
 exactly what an unbroken run would have done (bitwise on CPU). Under torchrun, the forward goes through the DDP wrapper, which
-averages gradients across processes.
+averages gradients across processes. The Trainer's hooks: log_losses, score_on_valid (best.pt)
+and keep_when_due (snapshots), after any given to train(cfg, hooks=...).
 """
 
 from __future__ import annotations
 
-import json
 import os
 import shutil
-import signal
-import threading
 import time
 from contextlib import contextmanager, nullcontext
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Callable
 
 import torch
 import torch.distributed as dist
@@ -38,7 +36,7 @@ from tqdm.auto import tqdm
 from runout import checks
 from runout.dataset import split_trajectories
 from runout.defaults import FRAME_DT
-from runout.errors import InputError, Interrupted
+from runout.errors import InputError
 from runout.gns.checkpoint import read_checkpoint, save_checkpoint, simulator_from_checkpoint
 from runout.gns.checkpoint_checks import check_resumable, check_schema
 from runout.gns.features import Constraints
@@ -50,12 +48,12 @@ from runout.gns.training import masked_loss, pushforward, training_inputs
 from runout.gns.windows import TrainingWindows, mirrored
 from runout.learned.training_range import measure as measure_ranges
 from runout.metrics import compare
-from runout.outputs import write_atomic
 from runout.simfiles import read_metadata
 from runout.train_settings import (  # noqa: F401  (the settings, re-exported)
     OPTION_NAMES, PUSHFORWARD_LIMITS, SETTING_LIMITS, Limit, TrainConfig, check_settings, onset_at, option_name,
     schedule_phase,
 )
+from runout.training.trainer import Budget, Context, Hook, LogFile, Trainer  # noqa: F401  (Context re-exported)
 
 CHECKPOINT = "checkpoint.pt"
 BEST = "best.pt"
@@ -66,19 +64,6 @@ SNAPSHOTS = "snapshots"  # --keep-every: copies of the checkpoint, step-<N>.pt
 def learning_rate(step: int, cfg: TrainConfig) -> float:
     i = step + cfg.lr_step_offset
     return (cfg.lr_init - cfg.lr_final) * 0.1 ** (i / cfg.lr_decay_steps) + cfg.lr_final
-
-
-@dataclass
-class Context:
-    """Where this process runs and whether it is the one that writes."""
-
-    device: torch.device
-    rank: int = 0
-    world: int = 1
-
-    @property
-    def writer(self) -> bool:
-        return self.rank == 0
 
 
 def train(cfg: TrainConfig, hooks: tuple[Hook, ...] = ()) -> GraphNetworkSimulator:
@@ -131,25 +116,19 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Grap
     if state:
         optimizer.load_state_dict(state["optimizer"])
         torch.set_rng_state(state["rng"]["torch"])
-    trainer = Trainer(
+    task = GnsTask(
         simulator=simulator, model=DistributedDataParallel(simulator) if ctx.world > 1 else simulator,
         optimizer=optimizer, data=data, bounds=torch.tensor(meta["bounds"], dtype=torch.float32, device=ctx.device),
-        cfg=cfg, ctx=ctx, log=RunLog(Path(cfg.out), ctx, state["step"] if state else 0, cfg.progress),
-        best=state.get("best_valid", float("inf")) if state else float("inf"),
-        hooks=(*hooks, log_losses, score_on_valid, save_when_due), average=average,
+        cfg=cfg, ctx=ctx, log=RunLog(Path(cfg.out), ctx, state["step"] if state else 0), average=average,
     )
-    deadline = time.monotonic() + cfg.max_hours * 3600 if cfg.max_hours > 0 else None
-    with StopRequest(deadline) as stop:
-        done = trainer.run(state["step"] if state else 0, stop)
-    trainer.log.close()
-    if done < cfg.steps and stop.requested:
-        raise Interrupted(
-            f"training stopped after step {done}, which {Path(cfg.out) / CHECKPOINT} holds, "
-            "and --resume continues exactly from there."
-        )
-    if done < cfg.steps and ctx.writer:  # the chunk's time is up, or a hook stopped it: a normal end
-        why = trainer.stop_reason or f"--max-hours {cfg.max_hours:g} reached"
-        tqdm.write(f"{why} after step {done}; {Path(cfg.out) / CHECKPOINT} holds it and --resume continues from there.")
+    trainer = Trainer(
+        task, cfg.steps, hooks=(*hooks, log_losses, score_on_valid, keep_when_due), save_every=cfg.save_every,
+        budget=Budget(max_hours=cfg.max_hours if cfg.max_hours > 0 else None), ctx=ctx, label="GNS training",
+        progress=cfg.progress, best=state.get("best_valid", float("inf")) if state else float("inf"),
+    )
+    trainer.run(state["step"] if state else 0)
+    task.log.close()
+    trainer.conclude()
     if average is not None:  # the model a run gives is the one it saves: the average
         average.copy_to(simulator)
     return simulator.eval()
@@ -206,16 +185,12 @@ class WeightAverage:
                     p.copy_(own[name])
 
 
-Hook = Callable[["Trainer"], None]
-
-
 @dataclass
-class Trainer:
-    """The training loop and its periodic duties. Each step sets the learning rate of the
-    schedule, takes one optimiser step (_train_step), then calls every hook in turn with the
-    trainer, whose `done` is the number of steps taken; logging, scoring on the valid split and
-    saving are such hooks, and train(..., hooks=) adds others before them (a hook that sets
-    `stop_reason` ends the run after this step, saved)."""
+class GnsTask:
+    """The GNS's training task for the Trainer (runout.training.trainer): each step draws a
+    batch and takes one Adam step (_train_step), then updates the weight average; its
+    checkpoint holds the model (the average with --ema, and the last step's weights as
+    train_model), Adam's state, the step, the settings, the RNG and the best validation score."""
 
     simulator: GraphNetworkSimulator
     model: torch.nn.Module  # the simulator, or its DDP wrapper under torchrun
@@ -225,55 +200,41 @@ class Trainer:
     cfg: TrainConfig
     ctx: Context
     log: "RunLog"
-    best: float  # best validation position MSE so far (m^2)
-    hooks: tuple[Hook, ...]
-    done: int = 0  # steps taken
-    lr: float = 0.0  # learning rate of the last step
-    losses: list[torch.Tensor] = field(default_factory=list)  # since the last log line
-    saved_at: int = -1  # step of the last checkpoint written
-    stop_reason: str | None = None  # set by a hook: stop after this step
     average: WeightAverage | None = None  # --ema: the weight average saved as the model
 
-    def run(self, start: int, stop: "StopRequest") -> int:
-        """Steps from `start` to cfg.steps, or until a stop is asked for (Ctrl-C, the
-        deadline, a hook); the step it ends on is saved. Returns the steps taken."""
-        self.done = start
-        for step in range(start, self.cfg.steps):
-            self.lr = learning_rate(step, self.cfg)
-            for group in self.optimizer.param_groups:
-                group["lr"] = self.lr
-            loss = _train_step(self.model, self.simulator, self.optimizer, self.data, self.bounds, self.cfg, step, self.ctx)
-            if self.average is not None:
-                self.average.update(self.simulator)
-            self.losses.append(loss.detach())
-            self.done = step + 1
-            for hook in self.hooks:
-                hook(self)
-            if stop.agreed(self.ctx) or self.stop_reason is not None:
-                if self.saved_at != self.done:
-                    self.write_checkpoint()
-                break
-        return self.done
+    @property
+    def checkpoint(self) -> Path:
+        return Path(self.cfg.out) / CHECKPOINT
 
-    def due(self, every: int) -> bool:
-        """Whether a duty of period `every` steps (0: never) falls on this step; the last step always does."""
-        return bool(every) and (self.done % every == 0 or self.done == self.cfg.steps)
+    def learning_rate(self, step: int) -> float:
+        return learning_rate(step, self.cfg)
 
-    def write_checkpoint(self) -> None:
-        """OUT/checkpoint.pt (written atomically): the model (the weight average with --ema, and
-        the last step's weights as train_model), Adam's state, the step, the settings, the RNG
-        and the best validation score; every keep_every steps also a copy in snapshots/."""
-        if self.ctx.writer:
-            weights = ({"model": self.average.state_dict(self.simulator), "train_model": self.simulator.state_dict()}
-                       if self.average else {})
-            path = save_checkpoint(
-                Path(self.cfg.out) / CHECKPOINT, self.simulator, optimizer=self.optimizer.state_dict(), step=self.done,
-                train=_settings(self.cfg), rng={"seed": self.cfg.seed, "torch": torch.get_rng_state()},
-                best_valid=self.best, **weights,
-            )
-            if self.cfg.keep_every and self.done % self.cfg.keep_every == 0:
-                keep(path, Path(self.cfg.out) / SNAPSHOTS / f"step-{self.done}.pt")
-        self.saved_at = self.done
+    def step(self, step: int) -> torch.Tensor:
+        loss = _train_step(self.model, self.simulator, self.optimizer, self.data, self.bounds, self.cfg, step, self.ctx)
+        if self.average is not None:
+            self.average.update(self.simulator)
+        return loss.detach()
+
+    def save(self, trainer: Trainer) -> None:
+        """OUT/checkpoint.pt (written atomically); every keep_every steps also a copy in snapshots/."""
+        if not self.ctx.writer:
+            return
+        weights = ({"model": self.average.state_dict(self.simulator), "train_model": self.simulator.state_dict()}
+                   if self.average else {})
+        path = save_checkpoint(
+            self.checkpoint, self.simulator, optimizer=self.optimizer.state_dict(), step=trainer.done,
+            train=_settings(self.cfg), rng={"seed": self.cfg.seed, "torch": torch.get_rng_state()},
+            best_valid=trainer.best, **weights,
+        )
+        if self.cfg.keep_every and trainer.done % self.cfg.keep_every == 0:
+            keep(path, Path(self.cfg.out) / SNAPSHOTS / f"step-{trainer.done}.pt")
+
+    def save_best(self, trainer: Trainer) -> None:
+        """OUT/best.pt: the weights scored (the average with --ema), with the run's settings
+        (provenance; --init reads lr_step_offset from them)."""
+        with self.average.applied(self.simulator) if self.average else nullcontext(self.simulator) as model:
+            save_checkpoint(Path(self.cfg.out) / BEST, model, step=trainer.done, best_valid=trainer.best,
+                            train=_settings(self.cfg))
 
 
 def keep(checkpoint: Path, snapshot: Path) -> None:
@@ -286,62 +247,28 @@ def keep(checkpoint: Path, snapshot: Path) -> None:
 
 def log_losses(trainer: Trainer) -> None:
     """Every log_every steps (and at every save), the mean loss of each group of steps."""
-    cfg = trainer.cfg
+    cfg = trainer.task.cfg
     if trainer.due(cfg.log_every) or trainer.done % cfg.save_every == 0:
-        trainer.log.losses(trainer.done, trainer.losses, trainer.lr, cfg.log_every)
+        trainer.task.log.losses(trainer.done, trainer.losses, trainer.lr, cfg.log_every, trainer.bar)
         trainer.losses = []
 
 
 def score_on_valid(trainer: Trainer) -> None:
     """Every valid_every steps, rollouts from rest of the valid split's first scenes (with the
-    weight average under --ema); best.pt kept."""
-    cfg = trainer.cfg
-    if cfg.valid_every and trainer.done % cfg.valid_every == 0 and trainer.ctx.writer:
-        with trainer.average.applied(trainer.simulator) if trainer.average else nullcontext(trainer.simulator) as model:
-            trainer.best = _valid_rollouts(model, cfg, trainer.log, trainer.done, trainer.best)
+    weight average under --ema); the Trainer keeps the best in best.pt."""
+    task, cfg = trainer.task, trainer.task.cfg
+    if cfg.valid_every and trainer.done % cfg.valid_every == 0 and task.ctx.writer:
+        with task.average.applied(task.simulator) if task.average else nullcontext(task.simulator) as model:
+            mse = _valid_rollouts(model, cfg, task.log, trainer.done)
+        if mse is not None:
+            trainer.score(mse)
 
 
-def save_when_due(trainer: Trainer) -> None:
-    """Every save_every steps and at the last, the checkpoint (written atomically); also every
-    keep_every steps, which keeps a copy of it (Trainer.write_checkpoint)."""
-    if trainer.due(trainer.cfg.save_every) or trainer.due(trainer.cfg.keep_every):
-        trainer.write_checkpoint()
-
-
-class StopRequest:
-    """Ctrl-C (SIGINT) during training asks the loop to stop after the step it is in, so
-    the checkpoint it saves is that of a whole step; a second Ctrl-C stops at once. A
-    deadline (time.monotonic() seconds) stops it the same way once passed."""
-
-    def __init__(self, deadline: float | None = None):
-        self.deadline = deadline
-        self.out_of_time = False
-
-    def __enter__(self) -> "StopRequest":
-        self.requested = False
-        self._previous = None
-        if threading.current_thread() is threading.main_thread():
-            self._previous = signal.signal(signal.SIGINT, self._ask)
-        return self
-
-    def _ask(self, signum, frame) -> None:
-        self.requested = True
-        signal.signal(signal.SIGINT, signal.default_int_handler)
-
-    def agreed(self, ctx: Context) -> bool:
-        """Whether to stop now; under torchrun every process stops if any was asked to (or
-        ran out of time)."""
-        self.out_of_time = self.deadline is not None and time.monotonic() > self.deadline
-        if ctx.world == 1:
-            return self.requested or self.out_of_time
-        flag = torch.tensor([float(self.requested), float(self.out_of_time)], device=ctx.device)
-        dist.all_reduce(flag, op=dist.ReduceOp.MAX)
-        self.out_of_time = bool(flag[1].item())
-        return bool(flag.max().item())
-
-    def __exit__(self, *exc) -> None:
-        if self._previous is not None:
-            signal.signal(signal.SIGINT, self._previous)
+def keep_when_due(trainer: Trainer) -> None:
+    """Every keep_every steps, the checkpoint, which GnsTask.save keeps a copy of (the Trainer
+    saves every save_every steps and at the end)."""
+    if trainer.due(trainer.task.cfg.keep_every):
+        trainer.save()
 
 
 def continued_onset(init: Path | None) -> dict:
@@ -540,11 +467,12 @@ def _settings(cfg: TrainConfig) -> dict:
     return {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()}
 
 
-def _valid_rollouts(simulator: GraphNetworkSimulator, cfg: TrainConfig, log: "RunLog", step: int, best: float) -> float:
-    """Roll out the first validation trajectories from rest; keep best.pt by mean position MSE."""
+def _valid_rollouts(simulator: GraphNetworkSimulator, cfg: TrainConfig, log: "RunLog", step: int) -> float | None:
+    """Roll out the first validation trajectories from rest; their mean position MSE (m^2),
+    logged (None without a valid split)."""
     path = Path(cfg.data) / "valid.npz"
     if not path.is_file():
-        return best
+        return None
     results = []
     simulator.eval()
     for truth in split_trajectories(cfg.data, "valid", cfg.valid_trajectories):
@@ -554,39 +482,27 @@ def _valid_rollouts(simulator: GraphNetworkSimulator, cfg: TrainConfig, log: "Ru
     mse = sum(r["position_mse_mean_m2"] for r in results) / len(results)
     runout = sum(abs(r["runout_error"]) for r in results) / len(results)
     log.validation(step, mse, runout)
-    if mse < best:  # the weights, with the run's settings (provenance; --init reads lr_step_offset from them)
-        save_checkpoint(Path(cfg.out) / BEST, simulator, step=step, best_valid=mse, train=_settings(cfg))
-    return min(mse, best)
+    return mse
 
 
 class RunLog:
-    """log.jsonl (always), TensorBoard (when installed) and a progress bar, on rank 0.
+    """log.jsonl (always) and TensorBoard (when installed), on rank 0.
     On resume, log lines beyond the checkpoint's step are dropped: they are redone."""
 
-    def __init__(self, out: Path, ctx: Context, start: int, progress: bool = True):
+    def __init__(self, out: Path, ctx: Context, start: int):
         self.ctx = ctx
-        self.path = out / LOG
-        self.bar = None
+        self.file = LogFile(out / LOG)
         self.tensorboard = None
         if not ctx.writer:
             return
         out.mkdir(parents=True, exist_ok=True)
-        before = self._truncate(start)
-        self.bar = tqdm(initial=start, desc="GNS training", unit="step", dynamic_ncols=True, disable=not progress)
+        before = max((float(r.get("wall_s", 0.0)) for r in self.file.keep_until(start)), default=0.0)
         self.tensorboard = _tensorboard_writer(out)
         self.t0 = time.perf_counter() - before  # wall_s counts on across resumed chunks
 
-    def _truncate(self, start: int) -> float:
-        """Keep the lines up to step `start`; return the wall time (s) they had reached."""
-        if not self.path.exists():
-            return 0.0
-        kept = [json.loads(ln) for ln in self.path.read_text().splitlines() if ln]
-        kept = [r for r in kept if r["step"] <= start]
-        write_atomic(self.path, "".join(json.dumps(r) + "\n" for r in kept))
-        return max((float(r.get("wall_s", 0.0)) for r in kept), default=0.0)
-
-    def losses(self, step: int, losses: list[torch.Tensor], lr: float, every: int) -> None:
-        """Record the mean loss of each group of `every` steps (averaged over processes)."""
+    def losses(self, step: int, losses: list[torch.Tensor], lr: float, every: int, bar) -> None:
+        """Record the mean loss of each group of `every` steps (averaged over processes); the
+        last on the progress bar."""
         values = torch.stack(losses)
         if self.ctx.world > 1:
             dist.all_reduce(values)
@@ -601,8 +517,7 @@ class RunLog:
             self._write({"step": last, "loss": sum(group) / len(group), "lr": lr})
             if self.tensorboard:
                 self.tensorboard.add_scalar("train/loss", sum(group) / len(group), last)
-        self.bar.update(len(values))
-        self.bar.set_postfix(loss=f"{values[-1]:.4g}", lr=f"{lr:.3g}")
+        bar.set_postfix(loss=f"{values[-1]:.4g}", lr=f"{lr:.3g}")
 
     def validation(self, step: int, mse: float, runout_error: float) -> None:
         self._write({"step": step, "valid_position_mse_m2": mse, "valid_runout_error": runout_error})
@@ -611,13 +526,9 @@ class RunLog:
             self.tensorboard.add_scalar("valid/runout_error", runout_error, step)
 
     def _write(self, record: dict) -> None:
-        record["wall_s"] = round(time.perf_counter() - self.t0, 3)
-        with self.path.open("a") as f:
-            f.write(json.dumps(record) + "\n")
+        self.file.write(**record, wall_s=round(time.perf_counter() - self.t0, 3))
 
     def close(self) -> None:
-        if self.bar is not None:
-            self.bar.close()
         if self.tensorboard:
             self.tensorboard.close()
 

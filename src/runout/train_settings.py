@@ -1,7 +1,10 @@
-"""The settings of a GNS training run, torch-free: TrainConfig (every field a `runout train`
-option derives its default from; the defaults are the recipe the pilots chose, docs/training.md),
-SETTING_LIMITS (the allowed value of every setting a user gives, one table) and check_settings.
-runout.train runs them; the command line reads them without loading torch.
+"""The settings of a training run, torch-free: for the GNS, TrainConfig (every field a `runout
+train` option derives its default from; the defaults are the recipe the pilots chose,
+docs/training.md), SETTING_LIMITS (the allowed value of every setting a user gives, one table)
+and check_settings; for the neural MPM, its TrainSettings and NeuralMPMConfig with their limits
+(check_neural_mpm); and ENGINE_OPTIONS, the `runout train` options only one engine takes.
+runout.train and runout.neural_mpm.training run them; the command line reads them without
+loading torch.
 """
 
 from __future__ import annotations
@@ -12,6 +15,8 @@ from pathlib import Path
 from runout import checks
 from runout.contract import SCHEMA_LIMITS
 from runout.gns.schema import MAX_STEPS, NETWORK_LIMITS, NetworkConfig  # noqa: F401  (NetworkConfig re-exported for the command line)
+from runout.neural_mpm.config import CONFIG_LIMITS, MAX_LEVELS, MAX_WIDTH, WHOLE, NeuralMPMConfig, widths_allowed
+from runout.neural_mpm.settings import TrainSettings as NeuralMPMSettings
 
 PUSHFORWARD_LIMITS = (0, 10)  # allowed --pushforward: the most rollout steps before a training step
 
@@ -182,3 +187,52 @@ def check_settings(cfg: TrainConfig, names=tuple(SETTING_LIMITS)) -> None:
             if f.name in names and limit is not None and value is not None:
                 checks.number(value, option_name(f.name), None, limit.lo, limit.hi, limit.unit, limit.lo_open,
                               whole=str(f.type).startswith("int"))
+
+
+# The `runout train` options of one engine only (by parameter name): given with the other
+# engine, they are refused. Every other option serves both (--steps, --lr, --mirror, ...).
+ENGINE_OPTIONS = {
+    "gns": ("init", "device", "radius", "frame_stride", "pushforward", "compile_network", "ema", "noise", "rest_windows",
+            "exact_rest", "onset_schedule", "overburden", "latent", "hidden", "message_passing", "keep_every", "bf16",
+            "checkpoint_layers"),
+    "neural-mpm": ("calls", "lr_final", "rest_share", "data_shares", "max_cpu_hours", "threads", "cell_size", "history",
+                   "frames_per_call", "widths"),
+}
+ENGINES = tuple(ENGINE_OPTIONS)
+
+# (lowest, highest, whole, lowest excluded) of each neural-MPM setting a user gives, by TrainSettings field
+NEURAL_MPM_LIMITS = {
+    "steps": (1, MAX_STEPS, True, False), "batch_size": (1, 64, True, False), "calls": (1, 64, True, False),
+    "lr": (0.0, 1.0, False, True), "lr_final": (0.0, 1.0, False, True), "lr_decay_steps": (1.0, 1e12, False, False),
+    "rest_share": (0.0, 1.0, False, False), "mirror_share": (0.0, 1.0, False, False),
+    "valid_every": (0, 1_000_000_000, True, False), "valid_count": (1, 10_000, True, False),
+    "save_every": (1, 1_000_000_000, True, False), "log_every": (1, 1_000_000_000, True, False),
+    "max_hours": (0.0, 1000.0, False, True), "max_cpu_hours": (0.0, 1e6, False, True), "threads": (1, 1024, True, False),
+}
+# The `runout train` options of the neural MPM's settings not named --field-name
+NEURAL_MPM_OPTIONS = {"mirror_share": "--mirror", "valid_count": "--valid-trajectories"}
+
+
+def check_neural_mpm(settings: NeuralMPMSettings, config: NeuralMPMConfig) -> None:
+    """InputError naming the option of the first neural-MPM setting or engine size outside its
+    range (None: not given, passes)."""
+    for name, (lo, hi, whole, lo_open) in NEURAL_MPM_LIMITS.items():
+        value = getattr(settings, name)
+        if value is not None:
+            option = NEURAL_MPM_OPTIONS.get(name, "--" + name.replace("_", "-"))
+            checks.number(value, option, None, lo, hi, lo_open=lo_open, whole=whole)
+    for name in ("cell_size", "history", "frames_per_call"):
+        lo, hi = CONFIG_LIMITS[name]
+        checks.number(getattr(config, name), "--" + name.replace("_", "-"), None, lo, hi, whole=name in WHOLE)
+    if not widths_allowed(config.widths):
+        raise checks.InputError(f"--widths = {','.join(map(str, config.widths))} must be 1 to {MAX_LEVELS} whole numbers "
+                                f"of channels in [1, {MAX_WIDTH}] joined by commas, such as 32,64,96.")
+
+
+def parse_widths(text: str) -> tuple[int, ...]:
+    """--widths "32,64,96": the U-Net's channels per level; InputError unless whole numbers joined by commas."""
+    try:
+        return tuple(int(w) for w in text.split(","))
+    except ValueError:
+        raise checks.InputError(f"--widths = {text} must be whole numbers of channels joined by commas, such as "
+                                "32,64,96.") from None

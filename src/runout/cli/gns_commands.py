@@ -1,10 +1,12 @@
-"""`runout train` and `runout rollout`: the Graph Network Simulator from the command line."""
+"""`runout train` (the GNS, or the neural MPM with --engine neural-mpm) and `runout rollout`
+(either learned engine) from the command line."""
 
 from __future__ import annotations
 
 import json
 import os
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import typer
@@ -12,26 +14,46 @@ import typer
 from runout.cli.app import app
 from runout.errors import InputError
 from runout.scene.limits import MAX_FRAMES
-from runout.train_settings import NetworkConfig, TrainConfig, format_onset_schedule, option_name
+from runout.train_settings import (
+    ENGINE_OPTIONS, ENGINES, NetworkConfig, NeuralMPMConfig, NeuralMPMSettings, TrainConfig, format_onset_schedule,
+    option_name,
+)
 
 MAX_STOP_SPEED = 100.0  # m/s
 SETTING_OF_PARAMETER = {"lr": "lr_init", "message_passing": "message_passing_steps"}  # `train` parameters named apart from their setting
+NMPM = NeuralMPMSettings  # the neural MPM's defaults, for the help
+# `train` parameters that set a neural-MPM setting of another name
+NEURAL_MPM_SETTING = {"mirror": "mirror_share", "valid_trajectories": "valid_count"}
+ENGINE_NAMES = {"gns": "GNS", "neural-mpm": "neural MPM"}
 
 
-# Defaults are TrainConfig's and NetworkConfig's fields; limits are runout.train.SETTING_LIMITS (check_settings).
+# Defaults are TrainConfig's and NetworkConfig's fields (the neural MPM's, NeuralMPMSettings' and
+# NeuralMPMConfig's, where its help says so); limits are runout.train_settings' (check_settings,
+# check_neural_mpm).
 @app.command()
 def train(
     ctx: typer.Context,
-    data: Path = typer.Option(..., "--data", help="Dataset folder with train.npz, metadata.json (and valid.npz for validation rollouts)."),
-    out: Path = typer.Option(..., "--out", help="Run folder: checkpoint.pt, best.pt, log.jsonl (and tensorboard/ if installed)."),
-    steps: int = typer.Option(TrainConfig.steps, "--steps", help="Train until the step counter reaches this value."),
+    data: Path = typer.Option(..., "--data", help="Dataset folder with train.npz, metadata.json (and valid.npz for validation rollouts); neural-mpm: several joined by commas, the first one's valid split the measure."),
+    out: Path = typer.Option(..., "--out", help="Run folder: checkpoint.pt, best.pt, log.jsonl (neural-mpm: train.log.jsonl; and tensorboard/ if installed)."),
+    engine: str = typer.Option("gns", "--engine", help="The learned engine to train: gns or neural-mpm; the options of the other engine are refused."),
+    steps: int = typer.Option(TrainConfig.steps, "--steps", help=f"Train until the step counter reaches this value (neural-mpm: default {NMPM.steps:,})."),
     resume: bool = typer.Option(TrainConfig.resume, "--resume", help="Continue from OUT/checkpoint.pt exactly where it stopped."),
     init: Path = typer.Option(TrainConfig.init, "--init", help="Fine-tune from this checkpoint; extra material inputs (e.g. cohesion) start with zero weights."),
     device: str = typer.Option(TrainConfig.device, "--device", help="auto, cpu, cuda or cuda:K (under torchrun each process takes its LOCAL_RANK GPU)."),
-    batch_size: int = typer.Option(TrainConfig.batch_size, "--batch-size", help="Graphs per process and step."),
-    lr: float = typer.Option(TrainConfig.lr_init, option_name("lr_init"), help=f"Initial learning rate; decays as (lr - {TrainConfig.lr_final:g}) 0.1^(step / D) + {TrainConfig.lr_final:g}."),
-    lr_decay_steps: float = typer.Option(TrainConfig.lr_decay_steps, "--lr-decay-steps", help="D: steps over which the learning rate falls tenfold (paper: 5e6; fit it to the budget)."),
+    batch_size: int = typer.Option(TrainConfig.batch_size, "--batch-size", help=f"Graphs per process and step (neural-mpm: windows per step, default {NMPM.batch_size})."),
+    lr: float = typer.Option(TrainConfig.lr_init, option_name("lr_init"), help=f"Initial learning rate; decays as (lr - {TrainConfig.lr_final:g}) 0.1^(step / D) + {TrainConfig.lr_final:g} (neural-mpm: default {NMPM.lr:g}, decays exponentially to --lr-final over D steps, constant after)."),
+    lr_decay_steps: float = typer.Option(TrainConfig.lr_decay_steps, "--lr-decay-steps", help="D: steps over which the learning rate falls tenfold (paper: 5e6; fit it to the budget). neural-mpm: the steps of its decay to --lr-final (default: a new run's --steps; --resume keeps the run's, so a larger --steps goes on at --lr-final)."),
     max_hours: float = typer.Option(TrainConfig.max_hours, "--max-hours", help="Wall-clock hours for this run; then save and stop, exit 0 (0: no limit)."),
+    max_cpu_hours: float = typer.Option(None, "--max-cpu-hours", help="neural-mpm: CPU hours of the whole run (this process's on every thread, after those its checkpoint records); then save and stop, exit 0 (0: no limit)."),
+    calls: int = typer.Option(NMPM.calls, "--calls", help="neural-mpm: K, the engine's calls chained in each window's loss (it learns from its own predictions)."),
+    lr_final: float = typer.Option(NMPM.lr_final, "--lr-final", help="neural-mpm: the learning rate at the end of its decay."),
+    rest_share: float = typer.Option(NMPM.rest_share, "--rest-share", help="neural-mpm: share of the training windows that start at frame 0, from rest."),
+    data_shares: str = typer.Option(NMPM.data_shares, "--data-shares", help="neural-mpm: the part of the batches from each dataset of --data, e.g. 3,1 (default: by their scenes)."),
+    threads: int = typer.Option(NMPM.threads, "--threads", help="neural-mpm: CPU threads of the training (1: the pilots' measure of CPU time)."),
+    cell_size: float = typer.Option(NeuralMPMConfig.cell_size, "--cell-size", help="neural-mpm: m between the grid's nodes (new runs only; --resume keeps the checkpoint's engine)."),
+    history: int = typer.Option(NeuralMPMConfig.history, "--history", help="neural-mpm: past frame velocities per input (new runs only)."),
+    frames_per_call: int = typer.Option(NeuralMPMConfig.frames_per_call, "--frames-per-call", help="neural-mpm: m, the frames predicted per U-Net call (new runs only)."),
+    widths: str = typer.Option(",".join(map(str, NeuralMPMConfig.widths)), "--widths", help="neural-mpm: the U-Net's channels per level, joined by commas (new runs only)."),
     radius: float = typer.Option(TrainConfig.radius, "--radius", help="Connectivity radius in m (default: the dataset's, 2.3 point spacings); new runs only."),
     frame_stride: int = typer.Option(TrainConfig.frame_stride, "--frame-stride", help="Dataset frames per GNS step, 1-16 (default 1; --resume keeps the checkpoint's, --init keeps it unless this asks for another)."),
     pushforward: int = typer.Option(TrainConfig.pushforward, "--pushforward", help="Pushforward training, N = 0-10: each step rolls the model out n steps without gradient, n uniform in 0..N per step, and trains on the window it made (0: one-step training)."),
@@ -42,29 +64,33 @@ def train(
     exact_rest: bool = typer.Option(TrainConfig.exact_rest, "--exact-rest/--noisy-rest", help="Put no noise on a window's held copies of frame 0 (a rollout starts from the scene at rest exactly; the noise walk starts with its first step)."),
     onset_schedule: str = typer.Option(format_onset_schedule(TrainConfig.onset_schedule), "--onset-schedule", help="The onset of motion by step, STEP:SHARE:FRAMES,... (the recipe's three phases, docs/training.md): from each STEP on, a share SHARE of the windows is drawn from each simulation's first FRAMES frames (windows at rest included), the rest uniformly; before the first STEP, or with an empty schedule, every window uniformly."),
     overburden: bool = typer.Option(TrainConfig.overburden, "--overburden/--no-overburden", help="Give the network each point's depth of soil above it in its column (m / 100; at rest the overburden that sets its stress), which 5 message-passing steps of 9.2 m cannot see on a slope taller than 46 m. New runs only (default: on); --resume and --init keep the checkpoint's."),
-    mirror: float = typer.Option(TrainConfig.mirror, "--mirror", help="Share of the training windows reflected left-right about the domain's centre, 0-1 (the physics has no side; the slope families all fail to the right). The recipe's is 0.5."),
+    mirror: float = typer.Option(TrainConfig.mirror, "--mirror", help=f"Share of the training windows reflected left-right about the domain's centre, 0-1 (the physics has no side; the slope families all fail to the right). The recipe's is 0.5 (neural-mpm: {NMPM.mirror_share:g})."),
     latent: int = typer.Option(NetworkConfig.latent, "--latent", help="Latent size of nodes and edges."),
     hidden: int = typer.Option(NetworkConfig.hidden, "--hidden", help="Units of each hidden MLP layer."),
     message_passing: int = typer.Option(NetworkConfig.message_passing_steps, option_name("message_passing_steps"), help="Processor steps (unshared weights)."),
-    save_every: int = typer.Option(TrainConfig.save_every, "--save-every", help="Steps between checkpoints."),
+    save_every: int = typer.Option(TrainConfig.save_every, "--save-every", help=f"Steps between checkpoints (neural-mpm: default {NMPM.save_every})."),
     keep_every: int = typer.Option(TrainConfig.keep_every, "--keep-every", help="Every N steps also keep a copy of the checkpoint as OUT/snapshots/step-N.pt, to choose one afterwards by rollouts (0: never)."),
     log_every: int = typer.Option(TrainConfig.log_every, "--log-every", help="Steps per log.jsonl line (mean loss)."),
-    valid_every: int = typer.Option(TrainConfig.valid_every, "--valid-every", help="Steps between validation rollouts (0: never)."),
-    valid_trajectories: int = typer.Option(TrainConfig.valid_trajectories, "--valid-trajectories", help="Validation trajectories rolled out each time."),
+    valid_every: int = typer.Option(TrainConfig.valid_every, "--valid-every", help=f"Steps between validation rollouts (0: never; neural-mpm: default {NMPM.valid_every:,}, and on the last step)."),
+    valid_trajectories: int = typer.Option(TrainConfig.valid_trajectories, "--valid-trajectories", help=f"Validation trajectories rolled out each time (neural-mpm: default {NMPM.valid_count}, from rest)."),
     seed: int = typer.Option(TrainConfig.seed, "--seed", help="Seed of the initial weights, window sampling and noise."),
     bf16: bool = typer.Option(TrainConfig.bf16, "--bf16", help="Autocast the network to bfloat16 (faster on GPUs and on CPUs with AVX512-BF16 or AMX; elsewhere on a CPU it trains in float32, with a warning)."),
     checkpoint_layers: bool = typer.Option(TrainConfig.checkpoint_layers, "--checkpoint-layers/--no-checkpoint-layers", help="Recompute processor steps in backward to save memory."),
     progress: bool = typer.Option(TrainConfig.progress, "--progress/--no-progress", help="Show a progress bar on stderr (log.jsonl records the run either way)."),
     force: bool = typer.Option(False, "--force", help="Start afresh in --out, removing a previous run or another command's results there."),
 ) -> None:
-    """Train the GNS on an MPM dataset (one process, or many under torchrun). Ctrl-C saves
-    the checkpoint of the last whole step (exit 130); --resume continues exactly."""
+    """Train a learned engine on an MPM dataset: the GNS (one process, or many under torchrun)
+    or, with --engine neural-mpm, the neural MPM. Ctrl-C saves the checkpoint of the last whole
+    step (exit 130); --resume continues exactly."""
     from runout import checks
     from runout.outputs import check_folder, claim
     from runout.reading import folder_to_read
     from runout.train import BEST, CHECKPOINT, LOG, SNAPSHOTS, check_settings, resumed_settings, train as run_training
     from runout.train_settings import parse_onset_schedule
 
+    _check_engine_options(ctx, engine)
+    if engine == "neural-mpm":
+        return _train_neural_mpm(ctx, data, out, resume, force)
     cfg = TrainConfig(
         data=data, out=out, steps=steps, batch_size=batch_size, lr_init=lr, noise=noise,
         rest_windows=rest_windows, exact_rest=exact_rest, onset_schedule=parse_onset_schedule(onset_schedule),
@@ -144,6 +170,44 @@ def rollout(
 
         metrics["vtk"] = str(write_vtk(predicted, out / "vtk"))
     typer.echo(json.dumps(metrics, indent=2))
+
+
+def _check_engine_options(ctx: typer.Context, engine: str) -> None:
+    """InputError for an --engine other than gns or neural-mpm, or an option of the other engine."""
+    if engine not in ENGINES:
+        raise InputError(f"--engine = {engine} must be one of {', '.join(ENGINES)}.")
+    for other, names in ENGINE_OPTIONS.items():
+        given = [p.opts[0] for p in ctx.command.params if p.name in names and _given(ctx, p.name)]
+        if other != engine and given:
+            raise InputError(f"{given[0]} is an option of --engine {other} only; leave it out to train the {ENGINE_NAMES[engine]}.")
+
+
+def _train_neural_mpm(ctx: typer.Context, data: Path, out: Path, resume: bool, force: bool) -> None:
+    """`runout train --engine neural-mpm`: the options shared with the GNS take the neural
+    MPM's defaults where not given; checks, then the run (runout.training.engines)."""
+    from dataclasses import fields
+
+    from runout.outputs import check_folder, claim
+    from runout.reading import folder_to_read
+    from runout.train_settings import check_neural_mpm, parse_widths
+
+    values = {NEURAL_MPM_SETTING.get(name, name): value for name, value in ctx.params.items() if _given(ctx, name)}
+    settings = NeuralMPMSettings(**{f.name: values[f.name] for f in fields(NeuralMPMSettings) if f.name in values})
+    no_limit = {name: None for name in ("max_hours", "max_cpu_hours") if getattr(settings, name) == 0}  # 0: no limit
+    settings = replace(settings, data=str(data), out=str(out), **no_limit)
+    config = NeuralMPMConfig(cell_size=ctx.params["cell_size"], history=ctx.params["history"],
+                             frames_per_call=ctx.params["frames_per_call"], widths=parse_widths(ctx.params["widths"]))
+    check_neural_mpm(settings, config)
+    folders = [Path(d.strip()) for d in str(data).split(",") if d.strip()]
+    for folder in folders:
+        folder_to_read(folder, "dataset folder")
+    run_folder = check_folder(out, "train", ("checkpoint.pt", "best.pt", "train.log.jsonl"), mode="resume", force=force,
+                              inputs={"--data" if len(folders) == 1 else f"--data ({k + 1} of {len(folders)})": folder
+                                      for k, folder in enumerate(folders)})
+    claim(run_folder)
+    from runout.training.engines import train_neural_mpm
+
+    train_neural_mpm(settings, config, resume)
 
 
 def _given(ctx: typer.Context, name: str) -> bool:

@@ -6,7 +6,8 @@ Keys: format, schema (node-feature layout), stats (normalisation), radius (m), n
 their average, which every command uses), data_ranges (what the model was trained on, see
 runout.learned.training_range; its point_spacing_m is the spacing every GNS command fills a
 scene at, GraphNetworkSimulator.point_spacing). Files are written atomically (temporary file, then
-os.replace), so a run killed while saving leaves the previous checkpoint intact.
+os.replace, runout.learned.files.save_plain), so a run killed while saving leaves the previous
+checkpoint intact.
 
 Everything in a checkpoint is plain data (tensors, dicts, lists, numbers, strings), and it
 is read with torch.load(weights_only=True): a file that asks the unpickler for any other
@@ -17,7 +18,6 @@ state (step, rng, optimizer, train settings) when present (runout.gns.checkpoint
 
 from __future__ import annotations
 
-import os
 from dataclasses import asdict
 from pathlib import Path
 
@@ -27,7 +27,7 @@ from runout.errors import InputError
 from runout.gns.checkpoint_checks import check_contents
 from runout.gns.schema import FeatureSchema, NetworkConfig
 from runout.gns.simulator import GraphNetworkSimulator, Normalisation
-from runout.learned.files import GNS_FORMAT, read_plain
+from runout.learned.files import GNS_FORMAT, read_plain, save_plain
 
 FORMAT = GNS_FORMAT
 REQUIRED_KEYS = ("format", "schema", "stats", "radius", "network", "model")
@@ -48,12 +48,7 @@ def checkpoint_dict(simulator: GraphNetworkSimulator, **training_state) -> dict:
 
 def save_checkpoint(path: str | Path, simulator: GraphNetworkSimulator, **training_state) -> Path:
     """Write atomically; training_state (optimizer, step, rng, train, ...) is stored as is."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(checkpoint_dict(simulator, **training_state), tmp)
-    os.replace(tmp, path)
-    return path
+    return save_plain(path, checkpoint_dict(simulator, **training_state))
 
 
 def read_checkpoint(path: str | Path) -> dict:

@@ -1,5 +1,5 @@
 """Reading a learned engine's checkpoint file safely, whichever engine wrote it, and telling
-which engine that was.
+which engine that was; writing one atomically.
 
 Every checkpoint is plain data (tensors, dicts, lists, numbers, strings) and is read with
 torch.load(weights_only=True): a file that asks the unpickler for any other object is refused
@@ -9,6 +9,7 @@ for the GNS files written before there were two engines, the GNS format "runout-
 
 from __future__ import annotations
 
+import os
 import pickle
 import re
 import warnings
@@ -33,6 +34,17 @@ def read_plain(path: str | Path) -> object:
         raise InputError(_refusal(path, exc)) from None
     except Exception as exc:  # torch raises many types for a corrupt or foreign file
         raise InputError(f"{path}: not a readable PyTorch checkpoint ({type(exc).__name__}: {first_line(exc)}).") from None
+
+
+def save_plain(path: str | Path, contents: dict) -> Path:
+    """Write a checkpoint's contents atomically (a temporary file, then os.replace), so a run
+    killed while saving leaves the previous file whole; every engine's checkpoints go through here."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    torch.save(contents, tmp)
+    os.replace(tmp, path)
+    return path
 
 
 def engine_of(ckpt: object) -> str | None:

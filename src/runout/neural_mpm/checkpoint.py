@@ -6,7 +6,6 @@ entry by entry before anything is built from it."""
 
 from __future__ import annotations
 
-import os
 from dataclasses import fields
 from pathlib import Path
 
@@ -14,17 +13,11 @@ import torch
 
 from runout import checks
 from runout.errors import InputError
-from runout.learned.files import engine_of, read_plain
+from runout.learned.files import engine_of, read_plain, save_plain
+from runout.neural_mpm.config import CONFIG_LIMITS, MAX_LEVELS, MAX_WIDTH, WHOLE, widths_allowed
 from runout.neural_mpm.engine import ENGINE_NAME, NeuralMPM, NeuralMPMConfig
 
 FORMAT = "runout-neural-mpm-1"
-# Allowed [lowest, highest] of every config field
-CONFIG_LIMITS = {
-    "cell_size": (1e-3, 1e4), "point_spacing": (1e-3, 1e4), "frame_dt": (1e-6, 10.0), "history": (1, 16),
-    "frames_per_call": (1, 64), "material_width": (1, 2), "velocity_scale": (1e-9, 1e3), "pad": (1, 8),
-}
-WHOLE = ("history", "frames_per_call", "material_width", "pad")
-MAX_WIDTH = 1024  # U-Net channels at one level
 
 
 def checkpoint_dict(engine: NeuralMPM, **training_state) -> dict:
@@ -33,11 +26,8 @@ def checkpoint_dict(engine: NeuralMPM, **training_state) -> dict:
 
 
 def save_checkpoint(path: str | Path, engine: NeuralMPM, **training_state) -> Path:
-    path = Path(path)
-    tmp = path.with_name(path.name + ".tmp")
-    torch.save(checkpoint_dict(engine, **training_state), tmp)
-    os.replace(tmp, path)
-    return path
+    """Write atomically (runout.learned.files.save_plain)."""
+    return save_plain(path, checkpoint_dict(engine, **training_state))
 
 
 def read_checkpoint(path: str | Path) -> dict:
@@ -70,9 +60,9 @@ def _check_config(config: dict, path) -> None:
         if key in config:
             checks.number(config[key], f"config.{key}", path, lo, hi, whole=key in WHOLE)
     widths = config.get("widths", NeuralMPMConfig.widths)
-    if (not isinstance(widths, (list, tuple)) or not 1 <= len(widths) <= 6
-            or any(isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= MAX_WIDTH for w in widths)):
-        raise InputError(f"{path}: config.widths = {widths!r} must be 1 to 6 whole numbers of channels in [1, {MAX_WIDTH}].")
+    if not widths_allowed(widths):
+        raise InputError(f"{path}: config.widths = {widths!r} must be 1 to {MAX_LEVELS} whole numbers of channels in "
+                         f"[1, {MAX_WIDTH}].")
 
 
 def engine_from_checkpoint(ckpt: dict, source) -> NeuralMPM:

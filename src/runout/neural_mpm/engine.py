@@ -26,7 +26,7 @@ both (the inverse analysis runs through it).
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
@@ -34,42 +34,15 @@ from torch import nn
 from torch.utils.checkpoint import checkpoint as recompute_in_backward
 from tqdm.auto import tqdm
 
-from runout.defaults import FRAME_DT, PARTICLE_TYPE_KINEMATIC
+from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError, RolloutDiverged
+from runout.neural_mpm.config import NeuralMPMConfig  # noqa: F401  (the engine's config, re-exported)
 from runout.neural_mpm.unet import UNet
 from runout.transfer import GridTransfer
 
 ENGINE_NAME = "neural-mpm"
 MIN_FRAMES_BEFORE_STOP = 40  # dataset frames: a slope at rest needs time to start failing
 FILL_FLOOR = 0.05  # fill below which a node's mean velocity and material fade to zero (no soil there)
-
-
-@dataclass(frozen=True)
-class NeuralMPMConfig:
-    """Everything that fixes the engine's inputs and outputs; stored in every checkpoint."""
-
-    cell_size: float = 8.0  # m between grid nodes
-    point_spacing: float = 4.0  # m between the training data's points
-    frame_dt: float = FRAME_DT  # s between the frames the engine steps through
-    history: int = 3  # past frame velocities per input
-    frames_per_call: int = 8  # m: frames predicted per U-Net call
-    widths: tuple[int, ...] = (32, 64, 96)  # U-Net channels per level
-    material_width: int = 2  # [tan phi, c / 100 kPa]
-    velocity_scale: float = 0.0  # m per frame: the unit of the velocity channels (0: from the training data)
-    pad: int = 2  # grid nodes outside each wall
-
-    @property
-    def in_channels(self) -> int:
-        return 2 + 2 * self.history + self.material_width + 2
-
-    def as_dict(self) -> dict:
-        return asdict(self)
-
-    @classmethod
-    def from_dict(cls, table: dict) -> "NeuralMPMConfig":
-        values = dict(table)
-        values["widths"] = tuple(int(w) for w in values.get("widths", cls.widths))
-        return cls(**values)
 
 
 @dataclass

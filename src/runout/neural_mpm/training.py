@@ -1,21 +1,25 @@
-"""Training the neural MPM: windows of the dataset, a position loss over K chained calls,
-Adam with an exponential learning-rate decay, checkpoints written atomically and resumed
-exactly, held-out rollouts from rest as the measure (runout.evaluate.heldout).
+"""The neural MPM's training task, run by the one Trainer (runout.training.trainer): windows of
+the dataset, a position loss over K chained calls, Adam with an exponential learning-rate
+decay, checkpoints written atomically and resumed exactly, held-out rollouts from rest as the
+measure (runout.evaluate.heldout).
 
 The loss of a window is the mean squared distance (in cells, (m / cell_size)^2) between the
 predicted and the MPM's soil positions over the K calls' K m frames, so the engine learns
 from its own predictions as it will be rolled out. The draws of step n come from a generator
-seeded with (seed, n): a resumed run draws what an unbroken one would have. A run stops at
-`steps`, at `max_hours` of wall time, at `max_cpu_hours` of its own CPU time (the measure
-of the equal-CPU pilots: what the process used on every thread, training and validation),
-or on Ctrl-C, and saves the step it ends on.
+seeded with (seed, n): a resumed run draws what an unbroken one would have. The learning rate
+falls from lr to lr_final over lr_decay_steps steps (a new run's default: its `steps`), stored
+in the checkpoint, so a run resumed with a larger `steps` goes on at lr_final instead of
+starting its decay again. A run stops at `steps`, at `max_hours` of wall time, at
+`max_cpu_hours` of its own CPU time (the measure of the equal-CPU pilots: what the process
+used on every thread, training and validation, over every session of the run), or on Ctrl-C
+or SIGTERM, and is validated and saved on the step it ends on. train.log.jsonl holds one row
+per event: start, loss (every log_every steps), valid (the measure's dataset, then a row with
+`data` for each further dataset) and stop.
 """
 
 from __future__ import annotations
 
-import json
 import math
-import signal
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -28,39 +32,20 @@ from runout.defaults import PARTICLE_TYPE_KINEMATIC, PARTICLE_TYPE_SOIL
 from runout.errors import InputError
 from runout.neural_mpm.checkpoint import read_checkpoint, save_checkpoint
 from runout.neural_mpm.engine import NeuralMPM, NeuralMPMConfig
+from runout.neural_mpm.settings import TrainSettings
 from runout.neural_mpm.windows import WindowSampler
+from runout.training.trainer import Budget, Hook, LogFile, Trainer
 
 CHECKPOINT = "checkpoint.pt"
 BEST = "best.pt"
 LOG = "train.log.jsonl"
 
 
-@dataclass(frozen=True)
-class TrainSettings:
-    data: str = "data/ft8"  # dataset folder, or several joined by commas (the first one's valid split is the measure)
-    data_shares: str | None = None  # the part of the batches from each dataset, e.g. "3,1" (default: by their scenes)
-    out: str = "runs/neural-mpm"
-    steps: int = 20_000
-    batch_size: int = 8
-    calls: int = 2  # K: chained calls in the loss
-    lr: float = 1e-3
-    lr_final: float = 1e-4
-    rest_share: float = 0.1  # windows that start at frame 0
-    mirror_share: float = 0.5
-    seed: int = 0
-    valid_every: int = 2_000
-    valid_count: int = 16
-    save_every: int = 250
-    log_every: int = 100
-    max_hours: float | None = None
-    max_cpu_hours: float | None = None
-    threads: int = 1
-    progress: bool = True
-
-
 def learning_rate(step: int, s: TrainSettings) -> float:
-    """lr decayed exponentially from s.lr at step 0 to s.lr_final at s.steps."""
-    return s.lr * (s.lr_final / s.lr) ** (min(step, s.steps) / s.steps)
+    """lr decayed exponentially from s.lr at step 0 to s.lr_final at s.lr_decay_steps (None:
+    s.steps), constant after."""
+    span = s.lr_decay_steps or s.steps
+    return s.lr * (s.lr_final / s.lr) ** (min(step, span) / span)
 
 
 def window_loss(engine: NeuralMPM, window, calls: int) -> torch.Tensor:
@@ -76,66 +61,51 @@ def training_state(optimizer, step: int, cpu_seconds: float, best: float, settin
             "train": asdict(settings)}
 
 
-class RunLog:
-    def __init__(self, out: Path):
-        self.path = out / LOG
-
-    def write(self, **row) -> None:
-        with open(self.path, "a") as f:
-            f.write(json.dumps(row) + "\n")
-
-
-def train(settings: TrainSettings, config: NeuralMPMConfig | None = None, resume: bool = False) -> NeuralMPM:
+def train(settings: TrainSettings, config: NeuralMPMConfig | None = None, resume: bool = False,
+          hooks: tuple[Hook, ...] = ()) -> NeuralMPM:
     """Train (or resume) the run in settings.out; returns the engine at the last step. The
-    run ends validated and saved, whatever ends it (steps, time, a signal)."""
+    run ends validated and saved, whatever ends it (steps, time, a hook, a signal: then
+    Interrupted). Each of `hooks` is called with the Trainer after every step, before logging,
+    validation and saving."""
     torch.set_num_threads(settings.threads)
     run = Run.start(settings, config, resume)
-    stop = _StopOnSignal()
-    bar = tqdm(total=settings.steps, initial=run.step, disable=not settings.progress, desc="neural MPM", unit="step")
-    try:
-        while run.step < settings.steps:
-            run.take_step()
-            bar.update(1)
-            ending = run.out_of_time() or stop.asked or run.step == settings.steps
-            if run.truths and (run.step % settings.valid_every == 0 or ending):
-                run.validate()
-            if run.step % settings.save_every == 0 or ending:
-                run.save(CHECKPOINT)
-            if ending:
-                reason = "steps" if run.step == settings.steps else "signal" if stop.asked else "time"
-                run.log.write(event="stop", step=run.step, reason=reason, cpu_hours=run.cpu_used() / 3600)
-                break
-    finally:
-        bar.close()
-        stop.restore()
+    trainer = Trainer(
+        run, run.settings.steps, hooks=(*hooks, log_losses, validate_when_due, log_stop), save_every=settings.save_every,
+        budget=Budget(settings.max_hours, settings.max_cpu_hours, run.cpu_before), label="neural MPM",
+        progress=settings.progress, best=run.best,
+    )
+    trainer.run(run.start_step)
+    trainer.conclude()
     return run.engine
 
 
 @dataclass
 class Run:
-    """A training run's state between steps: the engine, Adam, the data, the held-out scenes,
-    the best held-out error so far and the CPU time used (s, over every session of the run)."""
+    """The neural MPM's training task: the engine, Adam, the data, the held-out scenes, the
+    step it starts from, the best held-out error and the CPU time (s) of its earlier sessions."""
 
     settings: TrainSettings
     engine: NeuralMPM
     optimizer: torch.optim.Optimizer
     sampler: WindowSampler
     truths: list
-    log: "RunLog"
-    step: int = 0
+    log: LogFile
+    start_step: int = 0
     best: float = math.inf
     cpu_before: float = 0.0
-    losses: list = field(default_factory=list)
     extra: dict = field(default_factory=dict)  # dataset -> held-out scenes of the other datasets (logged, not the measure)
 
     def __post_init__(self):
-        self._t_wall, self._t_cpu, self._t_log = time.monotonic(), time.process_time(), time.monotonic()
+        self.logged_at = time.monotonic()  # of the last loss row
 
     @classmethod
     def start(cls, settings: TrainSettings, config: NeuralMPMConfig | None, resume: bool) -> "Run":
         out = Path(settings.out)
+        if not resume and (out / CHECKPOINT).exists():
+            raise InputError(f"{out / CHECKPOINT}: already exists; pass --resume to continue it or choose another --out.")
         out.mkdir(parents=True, exist_ok=True)
         state = read_checkpoint(out / CHECKPOINT) if resume and (out / CHECKPOINT).is_file() else None
+        settings = with_schedule(settings, state, out / CHECKPOINT)
         config = NeuralMPMConfig.from_dict(state["config"]) if state is not None else config or NeuralMPMConfig()
         sampler = WindowSampler.from_splits(datasets(settings), "train", config.history, config.material_width,
                                             shares(settings))
@@ -146,57 +116,92 @@ class Run:
             engine = NeuralMPM(config)
         optimizer = torch.optim.Adam(engine.parameters(), lr=settings.lr)
         engine.data_ranges = _ranges(settings, sampler) if state is None else state.get("data_ranges")
-        run = cls(settings, engine, optimizer, sampler, _heldout(settings), RunLog(out), extra=_heldout_extra(settings))
+        run = cls(settings, engine, optimizer, sampler, _heldout(settings), LogFile(out / LOG), extra=_heldout_extra(settings))
         if state is not None:
             engine.load_state_dict(state["model"])
             optimizer.load_state_dict(state["optimizer"])
-            run.step, run.cpu_before, run.best = state["step"], state["cpu_seconds"], state["best"]
-        run.log.write(event="start", step=run.step, config=config.as_dict(), settings=asdict(settings),
+            run.start_step, run.cpu_before, run.best = state["step"], state["cpu_seconds"], state["best"]
+            run.log.keep_until(run.start_step)  # the rows of steps after the checkpoint's are redone
+        run.log.write(event="start", step=run.start_step, config=config.as_dict(), settings=asdict(settings),
                       parameters=sum(p.numel() for p in engine.parameters()), train_scenes=len(sampler))
         return run
 
-    def cpu_used(self) -> float:
-        return self.cpu_before + time.process_time() - self._t_cpu
+    @property
+    def checkpoint(self) -> Path:
+        return Path(self.settings.out) / CHECKPOINT
 
-    def out_of_time(self) -> bool:
-        s = self.settings
-        return (s.max_hours is not None and time.monotonic() - self._t_wall > s.max_hours * 3600
-                or s.max_cpu_hours is not None and self.cpu_used() > s.max_cpu_hours * 3600)
+    def learning_rate(self, step: int) -> float:
+        return learning_rate(step, self.settings)
 
-    def take_step(self) -> None:
+    def step(self, step: int) -> float:
+        """Training step `step`: a batch of windows drawn by its own generator, one Adam step; the loss."""
         s = self.settings
-        lr = learning_rate(self.step, s)
-        for group in self.optimizer.param_groups:
-            group["lr"] = lr
-        generator = torch.Generator().manual_seed(s.seed * 1_000_003 + self.step)
+        generator = torch.Generator().manual_seed(s.seed * 1_000_003 + step)
         span = s.calls * self.engine.config.frames_per_call
         window = self.sampler.draw(s.batch_size, span, s.rest_share, s.mirror_share, generator)
         loss = window_loss(self.engine, window, s.calls)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
-        self.losses.append(loss.item())
-        self.step += 1
-        if self.step % s.log_every == 0:
-            now = time.monotonic()
-            self.log.write(event="loss", step=self.step, loss=float(np.mean(self.losses)), lr=lr,
-                           steps_per_s=s.log_every / (now - self._t_log), cpu_hours=self.cpu_used() / 3600)
-            self.losses, self._t_log = [], now
+        return loss.item()
 
-    def validate(self) -> None:
-        """The held-out scenes from rest; best.pt keeps the best so far."""
+    def validate(self, trainer: Trainer) -> float:
+        """The held-out scenes from rest, logged; the measure's position error (m)."""
         result = evaluate(self.engine, self.truths)
-        self.log.write(event="valid", step=self.step, cpu_hours=self.cpu_used() / 3600, **_headline(result))
+        self.log.write(event="valid", step=trainer.done, cpu_hours=trainer.budget.cpu_seconds() / 3600, **_headline(result))
         for data, truths in self.extra.items():
-            self.log.write(event="valid", data=data, step=self.step, cpu_hours=self.cpu_used() / 3600,
-                           **_headline(evaluate(self.engine, truths)))
-        if result["position_error_m"] < self.best:
-            self.best = result["position_error_m"]
-            self.save(BEST)
+            scores = _headline(evaluate(self.engine, truths))
+            self.log.write(event="valid", data=data, step=trainer.done, cpu_hours=trainer.budget.cpu_seconds() / 3600, **scores)
+        return result["position_error_m"]
 
-    def save(self, name: str) -> None:
-        state = training_state(self.optimizer, self.step, self.cpu_used(), self.best, self.settings)
+    def save(self, trainer: Trainer, name: str = CHECKPOINT) -> None:
+        state = training_state(self.optimizer, trainer.done, trainer.budget.cpu_seconds(), trainer.best, self.settings)
         save_checkpoint(Path(self.settings.out) / name, self.engine, **state)
+
+    def save_best(self, trainer: Trainer) -> None:
+        self.save(trainer, BEST)
+
+
+def log_losses(trainer: Trainer) -> None:
+    """Every log_every steps, the mean loss since the last row, with the steps per second and CPU hours."""
+    run = trainer.task
+    every = run.settings.log_every
+    if trainer.done % every == 0:
+        now = time.monotonic()
+        loss = float(np.mean(trainer.losses))
+        run.log.write(event="loss", step=trainer.done, loss=loss, lr=trainer.lr, steps_per_s=every / (now - run.logged_at),
+                      cpu_hours=trainer.budget.cpu_seconds() / 3600)
+        trainer.losses, run.logged_at = [], now
+        trainer.bar.set_postfix(loss=f"{loss:.4g}", lr=f"{trainer.lr:.3g}")
+
+
+def validate_when_due(trainer: Trainer) -> None:
+    """Every valid_every steps and on the last, the held-out scores; the Trainer keeps the best in best.pt."""
+    run = trainer.task
+    if run.truths and (trainer.done % run.settings.valid_every == 0 or trainer.ending):
+        trainer.score(run.validate(trainer))
+
+
+def log_stop(trainer: Trainer) -> None:
+    """The stop row on the step the run ends on: why ("steps", "signal", "time") and the CPU hours."""
+    if trainer.ending:
+        trainer.task.log.write(event="stop", step=trainer.done, reason=trainer.end,
+                               cpu_hours=trainer.budget.cpu_seconds() / 3600)
+
+
+def with_schedule(settings: TrainSettings, state: dict | None, path: Path) -> TrainSettings:
+    """The settings with the length of the learning-rate decay fixed: as given, else a resumed
+    run's stored value (a run older than the setting: its `steps`, as it always was), else a new
+    run's `steps`. A resumed run that keeps or changes a stored schedule says so on stderr."""
+    stored = ((state or {}).get("train") or {}).get("lr_decay_steps")
+    given = settings.lr_decay_steps
+    if given is not None and stored is not None and given != stored:
+        tqdm.write(f"--lr-decay-steps {given:g} replaces the {stored:g} steps of the learning-rate decay that "
+                   f"{path} was trained with.")
+    elif given is None and stored is not None and stored != settings.steps:
+        tqdm.write(f"{path} keeps its learning-rate schedule: from {settings.lr:g} to {settings.lr_final:g} over "
+                   f"{stored:g} steps, whatever --steps says (--lr-decay-steps changes it).")
+    return replace(settings, lr_decay_steps=given if given is not None else stored if stored is not None else settings.steps)
 
 
 def datasets(settings: TrainSettings) -> list[str]:
@@ -272,18 +277,3 @@ def evaluate(engine: NeuralMPM, truths: list) -> dict:
     finally:
         engine.train()
     return score(predicted, truths, engine.point_spacing)
-
-
-class _StopOnSignal:
-    """Ctrl-C or SIGTERM ask the loop to stop after the current step (saved)."""
-
-    def __init__(self):
-        self.asked = False
-        self._old = {s: signal.signal(s, self._ask) for s in (signal.SIGINT, signal.SIGTERM)}
-
-    def _ask(self, *_):
-        self.asked = True
-
-    def restore(self):
-        for s, handler in self._old.items():
-            signal.signal(s, handler)

@@ -1,0 +1,33 @@
+"""The settings of a neural-MPM training run, torch-free: TrainSettings, whose defaults are
+the pilots' (docs/training.md); runout.train_settings holds their allowed values."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    data: str = "data/ft8"  # dataset folder, or several joined by commas (the first one's valid split is the measure)
+    data_shares: str | None = None  # the part of the batches from each dataset, e.g. "3,1" (default: by their scenes)
+    out: str = "runs/neural-mpm"
+    steps: int = 20_000
+    batch_size: int = 8
+    calls: int = 2  # K: chained calls in the loss
+    lr: float = 1e-3
+    lr_final: float = 1e-4
+    # steps over which the learning rate falls from lr to lr_final, constant after (None: a new run's
+    # `steps`; a resumed run's stored value, or for a run older than the setting, its `steps`)
+    lr_decay_steps: float | None = None
+    rest_share: float = 0.1  # windows that start at frame 0
+    mirror_share: float = 0.5
+    seed: int = 0
+    valid_every: int = 2_000
+    valid_count: int = 16
+    save_every: int = 250
+    log_every: int = 100
+    max_hours: float | None = None
+    max_cpu_hours: float | None = None
+    threads: int = 1
+    progress: bool = True
+
