@@ -84,8 +84,8 @@ def write_rollout_outputs(predicted: Trajectory, truth: Trajectory | None, out: 
     if truth is not None:
         metrics.update(compare(predicted, truth))
         predicted, truth = at_common_times(predicted, truth)  # the MPM at the engine's times
-        save_error_plot(position_mse(predicted, truth), predicted.frame_dt, out / "position_mse.png")
+        save_error_plot(position_mse(predicted, truth), predicted.frame_dt, out / "position_mse.png", label)
     if animation:
-        metrics["animation"] = str(save_rollout_animation(predicted, truth, out / "animation"))
+        metrics["animation"] = str(save_rollout_animation(predicted, truth, out / "animation", label=label))
     (out / "metrics.json").write_text(json.dumps(metrics, indent=2))
     return metrics

@@ -2,7 +2,7 @@
 
     runout.plots.frames     draw_materials, draw_displacement, save_frame, save_comparison,
                             save_side_by_side, draw_scene
-    runout.plots.rollout    draw_points, save_snapshots, save_error_plot (GNS rollouts)
+    runout.plots.rollout    draw_points, save_snapshots, save_error_plot (learned-engine rollouts)
     runout.plots.families   draw_grid (random scene families)
     runout.plots.animation  write_animation (the one writer: .mp4 or .gif), save_animation,
                             save_rollout_animation, save_side_by_side_animation, animation_name

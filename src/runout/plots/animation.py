@@ -56,12 +56,14 @@ def save_animation(
 
 
 def save_rollout_animation(
-    gns: Trajectory, mpm: Trajectory | None, path: str | Path, fps: int = 15, max_frames: int = 80
+    predicted: Trajectory, mpm: Trajectory | None, path: str | Path, fps: int = 15, max_frames: int = 80,
+    label: str = "GNS",
 ) -> Path:
-    """The GNS rollout, beside the MPM when given; .mp4 if ffmpeg exists, else .gif."""
-    trajs = [(gns, "GNS")] + ([(mpm, "MPM")] if mpm is not None else [])
+    """A learned engine's rollout (its name: label), beside the MPM when given; .mp4 if ffmpeg
+    exists, else .gif."""
+    trajs = [(predicted, label)] + ([(mpm, "MPM")] if mpm is not None else [])
     frames = _evenly_spread(min(t.n_frames for t, _ in trajs), max_frames)
-    fig = Figure(figsize=panel_size(gns, 1, len(trajs)))
+    fig = Figure(figsize=panel_size(predicted, 1, len(trajs)))
     axes = fig.subplots(1, len(trajs), squeeze=False)
 
     def draw(f):

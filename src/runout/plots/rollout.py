@@ -1,4 +1,4 @@
-"""Pictures of GNS rollouts: snapshots and the position error over time."""
+"""Pictures of a learned engine's rollouts: snapshots and the position error over time."""
 
 from __future__ import annotations
 
@@ -46,14 +46,14 @@ def save_snapshots(traj: Trajectory, path: str | Path, n: int = 4) -> Path:
     return Path(path)
 
 
-def save_error_plot(mse: np.ndarray, frame_dt: float, path: str | Path) -> Path:
-    """Position MSE (m^2) of the GNS against the MPM over time."""
+def save_error_plot(mse: np.ndarray, frame_dt: float, path: str | Path, label: str = "GNS") -> Path:
+    """Position MSE (m^2) of a learned engine (its name: label) against the MPM over time."""
     fig = Figure(figsize=(6, 3.5))
     ax = fig.add_subplot()
     ax.plot(np.arange(len(mse)) * frame_dt, mse)
     ax.set_xlabel("time (s)")
     ax.set_ylabel("position MSE (m$^2$)")
-    ax.set_title("GNS against MPM")
+    ax.set_title(f"{label} against MPM")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     return Path(path)
