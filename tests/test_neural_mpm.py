@@ -193,6 +193,31 @@ def test_a_checkpoint_of_one_engine_where_the_other_is_asked_for_is_one_sentence
         read_neural_mpm(gns_file)
 
 
+def test_a_weight_average_is_what_is_scored_and_saved_and_it_resumes_exactly(dataset, column, tmp_path):
+    from runout.neural_mpm.checkpoint import load_engine, read_checkpoint, ship
+    from runout.neural_mpm.training import evaluate
+
+    common = dict(data=str(dataset), steps=6, batch_size=2, valid_every=6, valid_count=1, save_every=3, ema=0.5,
+                  progress=False)
+    straight = train(TrainSettings(out=str(tmp_path / "a"), **common), TINY)
+    train(TrainSettings(out=str(tmp_path / "b"), max_cpu_hours=1e-9, **common), TINY)  # out of time at once
+    train(TrainSettings(out=str(tmp_path / "b"), **common), TINY, resume=True)
+    a, b = (read_checkpoint(tmp_path / run / CHECKPOINT) for run in "ab")
+    assert a["step"] == b["step"] == 6
+    for key in ("model", "train_model"):
+        assert all(torch.equal(a[key][k], b[key][k]) for k in a[key]), key
+    assert any(not torch.equal(a["model"][k], a["train_model"][k]) for k in a["model"])  # an average, not the last step
+    assert all(torch.equal(v, a["model"][k]) for k, v in straight.state_dict().items())  # the run gives the average
+    import json
+    valid = [json.loads(line) for line in (tmp_path / "a" / "train.log.jsonl").read_text().splitlines()]
+    scored = [row["position_error_m"] for row in valid if row["event"] == "valid"][-1]
+    assert scored == pytest.approx(evaluate(load_engine(tmp_path / "a" / CHECKPOINT), [column])["position_error_m"],
+                                   rel=1e-6)
+    ship(tmp_path / "a" / CHECKPOINT, tmp_path / "shipped.pt", tmp_path / "resume.pt")
+    assert "train_model" not in read_checkpoint(tmp_path / "shipped.pt")
+    assert "train_model" in read_checkpoint(tmp_path / "resume.pt")
+
+
 def test_a_shipped_file_holds_the_engine_and_the_resume_file_the_run(dataset, tmp_path):
     from runout.neural_mpm.checkpoint import load_engine, read_checkpoint, ship
 
@@ -311,6 +336,7 @@ def test_a_run_of_runout_train_stopped_by_ctrl_c_resumes_exactly(dataset, tmp_pa
     (["--engine", "neural-mpm", "--device", "cpu"], "--device is an option of --engine gns only"),
     (["--engine", "mpm"], "--engine = mpm must be one of gns, neural-mpm."),
     (["--engine", "neural-mpm", "--calls", "0"], "--calls = 0 is outside the allowed range"),
+    (["--engine", "neural-mpm", "--ema", "1.5"], "--ema = 1.5 is outside the allowed range"),
     (["--engine", "neural-mpm", "--widths", "32,x"], "--widths = 32,x must be whole numbers"),
 ])
 def test_an_option_of_the_other_engine_or_out_of_range_is_one_sentence(tmp_path, capsys, argv, words):

@@ -24,7 +24,7 @@ from __future__ import annotations
 import os
 import shutil
 import time
-from contextlib import contextmanager, nullcontext
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
@@ -53,6 +53,7 @@ from runout.train_settings import (  # noqa: F401  (the settings, re-exported)
     OPTION_NAMES, PUSHFORWARD_LIMITS, SETTING_LIMITS, Limit, TrainConfig, check_settings, onset_at, option_name,
     schedule_phase,
 )
+from runout.training.average import WeightAverage, last_step_weights
 from runout.training.trainer import Budget, Context, Hook, LogFile, Trainer  # noqa: F401  (Context re-exported)
 
 CHECKPOINT = "checkpoint.pt"
@@ -110,7 +111,7 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Grap
     simulator.to(ctx.device).train()
     if cfg.compile:  # in place: the module's state_dict keys, and so the checkpoint, stay those of the eager network
         simulator.network.compile(dynamic=True)
-    averaged = _last_step_weights(simulator, state)
+    averaged = last_step_weights(simulator, state)
     average = WeightAverage(simulator, cfg.ema, averaged) if cfg.ema > 0 else None
     optimizer = torch.optim.Adam(simulator.parameters(), lr=cfg.lr_init)
     if state:
@@ -132,57 +133,6 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Grap
     if average is not None:  # the model a run gives is the one it saves: the average
         average.copy_to(simulator)
     return simulator.eval()
-
-
-def _last_step_weights(simulator: GraphNetworkSimulator, state: dict | None) -> dict[str, torch.Tensor] | None:
-    """A resumed run that kept a weight average holds it as `model` (now in the simulator) and
-    its last step's weights as `train_model`: put those in the simulator, whose optimiser state
-    they are, and return the average's parameters (None when there is none)."""
-    if state is None or "train_model" not in state:
-        return None
-    averaged = {n: p.detach().clone() for n, p in simulator.named_parameters()}
-    simulator.load_state_dict(state["train_model"])
-    return averaged
-
-
-class WeightAverage:
-    """An exponential moving average of a simulator's parameters (float32), updated after
-    every optimiser step: avg <- decay avg + (1 - decay) w. With --ema the checkpoint's `model`
-    is the average (what rollouts, validation, --init and every command use) and `train_model`
-    the last step's weights, from which --resume goes on. A run that had no average starts
-    it from its current weights."""
-
-    def __init__(self, simulator: GraphNetworkSimulator, decay: float, start: dict[str, torch.Tensor] | None = None):
-        self.decay = decay
-        source = start if start is not None else dict(simulator.named_parameters())
-        self.values = {n: source[n].detach().float().clone() for n, _ in simulator.named_parameters()}
-
-    @torch.no_grad()
-    def update(self, simulator: GraphNetworkSimulator) -> None:
-        for name, p in simulator.named_parameters():
-            self.values[name].lerp_(p.detach().float(), 1.0 - self.decay)
-
-    def state_dict(self, simulator: GraphNetworkSimulator) -> dict:
-        """simulator.state_dict() with the averaged parameters in place of the last step's."""
-        state = simulator.state_dict()
-        return {k: (self.values[k].to(v.dtype).clone() if k in self.values else v) for k, v in state.items()}
-
-    @torch.no_grad()
-    def copy_to(self, simulator: GraphNetworkSimulator) -> None:
-        for name, p in simulator.named_parameters():
-            p.copy_(self.values[name])
-
-    @contextmanager
-    def applied(self, simulator: GraphNetworkSimulator):
-        """The simulator with the averaged weights inside the block, its own after."""
-        own = {n: p.detach().clone() for n, p in simulator.named_parameters()}
-        self.copy_to(simulator)
-        try:
-            yield simulator
-        finally:
-            with torch.no_grad():
-                for name, p in simulator.named_parameters():
-                    p.copy_(own[name])
 
 
 @dataclass

@@ -1,6 +1,7 @@
 """Neural-MPM checkpoints: one file holding the engine (its config and weights), what it was
 trained on (data_ranges, runout.learned.training_range) and, for a training run, the state to
-resume it (optimizer, step, cpu_seconds, best, train settings). Written atomically (temporary
+resume it (optimizer, step, cpu_seconds, best, train settings; with a weight average, the last
+step's weights as train_model, `model` being the average). Written atomically (temporary
 file, then os.replace); read as plain data (runout.learned.files.read_plain) and checked
 entry by entry before anything is built from it."""
 
@@ -41,9 +42,17 @@ def read_checkpoint(path: str | Path) -> dict:
         if not isinstance(ckpt.get(key), dict):
             raise InputError(f"{path}: the checkpoint's '{key}' must be a table of values.")
     _check_config(ckpt["config"], path)
-    for name, tensor in ckpt["model"].items():
-        if not isinstance(tensor, torch.Tensor) or not bool(torch.isfinite(tensor).all()):
-            raise InputError(f"{path}: the model weight '{name}' is not a finite tensor.")
+    for key in ("model", "train_model"):
+        weights = ckpt.get(key, {})
+        if not isinstance(weights, dict):
+            raise InputError(f"{path}: the checkpoint's '{key}' must be a table of values.")
+        for name, tensor in weights.items():
+            if not isinstance(tensor, torch.Tensor) or not bool(torch.isfinite(tensor).all()):
+                raise InputError(f"{path}: the {'model' if key == 'model' else 'last step'} weight '{name}' is not a "
+                                 "finite tensor.")
+    if "train_model" in ckpt and {k: tuple(v.shape) for k, v in ckpt["train_model"].items()} != \
+            {k: tuple(v.shape) for k, v in ckpt["model"].items()}:
+        raise InputError(f"{path}: the last step's weights (train_model) do not match the model's names and shapes.")
     ranges = ckpt.get("data_ranges")
     if ranges is not None and not isinstance(ranges, dict):
         raise InputError(f"{path}: the checkpoint's 'data_ranges' must be a table of values.")
@@ -91,4 +100,4 @@ def ship(run_file: str | Path, shipped: str | Path, resume: str | Path, ranges: 
     engine = engine_from_checkpoint(ckpt, run_file)
     trained = {k: ckpt[k] for k in ("step", "cpu_seconds", "best", "train") if k in ckpt}
     save_checkpoint(shipped, engine, **trained)
-    save_checkpoint(resume, engine, **{**trained, **{k: ckpt[k] for k in ("optimizer",) if k in ckpt}})
+    save_checkpoint(resume, engine, **{**trained, **{k: ckpt[k] for k in ("optimizer", "train_model") if k in ckpt}})

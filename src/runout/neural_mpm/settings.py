@@ -21,6 +21,9 @@ class TrainSettings:
     lr_decay_steps: float | None = None
     rest_share: float = 0.1  # windows that start at frame 0
     mirror_share: float = 0.5
+    # decay per step of the weight average validated and saved as the model (0: the last step's
+    # weights, as the pilots of rounds 1-3); the last step's weights are kept for --resume
+    ema: float = 0.0
     seed: int = 0
     valid_every: int = 2_000
     valid_count: int = 16

@@ -12,7 +12,9 @@ in the checkpoint, so a run resumed with a larger `steps` goes on at lr_final in
 starting its decay again. A run stops at `steps`, at `max_hours` of wall time, at
 `max_cpu_hours` of its own CPU time (the measure of the equal-CPU pilots: what the process
 used on every thread, training and validation, over every session of the run), or on Ctrl-C
-or SIGTERM, and is validated and saved on the step it ends on. train.log.jsonl holds one row
+or SIGTERM, and is validated and saved on the step it ends on. With `ema` > 0 an exponential moving average of the weights
+is what is validated and saved as the model (runout.training.average), the last step's
+weights kept beside it for the resume. train.log.jsonl holds one row
 per event: start, loss (every log_every steps), valid (the measure's dataset, then a row with
 `data` for each further dataset) and stop.
 """
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import math
 import time
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
@@ -34,6 +37,7 @@ from runout.neural_mpm.checkpoint import read_checkpoint, save_checkpoint
 from runout.neural_mpm.engine import NeuralMPM, NeuralMPMConfig
 from runout.neural_mpm.settings import TrainSettings
 from runout.neural_mpm.windows import WindowSampler
+from runout.training.average import WeightAverage, last_step_weights
 from runout.training.trainer import Budget, Hook, LogFile, Trainer
 
 CHECKPOINT = "checkpoint.pt"
@@ -76,6 +80,8 @@ def train(settings: TrainSettings, config: NeuralMPMConfig | None = None, resume
     )
     trainer.run(run.start_step)
     trainer.conclude()
+    if run.average is not None:  # the engine a run gives is the one it saves: the average
+        run.average.copy_to(run.engine)
     return run.engine
 
 
@@ -94,6 +100,7 @@ class Run:
     best: float = math.inf
     cpu_before: float = 0.0
     extra: dict = field(default_factory=dict)  # dataset -> held-out scenes of the other datasets (logged, not the measure)
+    average: WeightAverage | None = None  # --ema: the weight average validated and saved as the model
 
     def __post_init__(self):
         self.logged_at = time.monotonic()  # of the last loss row
@@ -117,11 +124,15 @@ class Run:
         optimizer = torch.optim.Adam(engine.parameters(), lr=settings.lr)
         engine.data_ranges = _ranges(settings, sampler) if state is None else state.get("data_ranges")
         run = cls(settings, engine, optimizer, sampler, _heldout(settings), LogFile(out / LOG), extra=_heldout_extra(settings))
+        averaged = None
         if state is not None:
             engine.load_state_dict(state["model"])
+            averaged = last_step_weights(engine, state)
             optimizer.load_state_dict(state["optimizer"])
             run.start_step, run.cpu_before, run.best = state["step"], state["cpu_seconds"], state["best"]
             run.log.keep_until(run.start_step)  # the rows of steps after the checkpoint's are redone
+        if settings.ema > 0:
+            run.average = WeightAverage(engine, settings.ema, averaged)
         run.log.write(event="start", step=run.start_step, config=config.as_dict(), settings=asdict(settings),
                       parameters=sum(p.numel() for p in engine.parameters()), train_scenes=len(sampler))
         return run
@@ -143,20 +154,36 @@ class Run:
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
+        if self.average is not None:
+            self.average.update(self.engine)
         return loss.item()
 
+    def scored(self):
+        """The engine as validated and saved: with the weight average inside the block under --ema."""
+        return self.average.applied(self.engine) if self.average is not None else nullcontext(self.engine)
+
     def validate(self, trainer: Trainer) -> float:
-        """The held-out scenes from rest, logged; the measure's position error (m)."""
-        result = evaluate(self.engine, self.truths)
-        self.log.write(event="valid", step=trainer.done, cpu_hours=trainer.budget.cpu_seconds() / 3600, **_headline(result))
-        for data, truths in self.extra.items():
-            scores = _headline(evaluate(self.engine, truths))
-            self.log.write(event="valid", data=data, step=trainer.done, cpu_hours=trainer.budget.cpu_seconds() / 3600, **scores)
+        """The held-out scenes from rest (the weight average's under --ema), logged; the
+        measure's position error (m)."""
+        with self.scored() as engine:
+            result = evaluate(engine, self.truths)
+            self.log.write(event="valid", step=trainer.done, cpu_hours=trainer.budget.cpu_seconds() / 3600,
+                           **_headline(result))
+            for data, truths in self.extra.items():
+                scores = _headline(evaluate(engine, truths))
+                self.log.write(event="valid", data=data, step=trainer.done,
+                               cpu_hours=trainer.budget.cpu_seconds() / 3600, **scores)
         return result["position_error_m"]
 
     def save(self, trainer: Trainer, name: str = CHECKPOINT) -> None:
+        """The checkpoint (atomically): the model (the average under --ema, and then the last
+        step's weights as train_model) and the state to resume."""
         state = training_state(self.optimizer, trainer.done, trainer.budget.cpu_seconds(), trainer.best, self.settings)
-        save_checkpoint(Path(self.settings.out) / name, self.engine, **state)
+        if self.average is not None:
+            state["train_model"] = {k: v.detach().clone() for k, v in self.engine.state_dict().items()}  # a copy: the
+            # state dict shares the parameters' storage, which scored() fills with the average
+        with self.scored() as engine:
+            save_checkpoint(Path(self.settings.out) / name, engine, **state)
 
     def save_best(self, trainer: Trainer) -> None:
         self.save(trainer, BEST)
