@@ -15,7 +15,7 @@ LAYERS = (
     ("foundation", ("runout", "runout.errors", "runout.defaults", "runout.contract", "runout.npz", "runout.outputs",
                     "runout.reading", "runout.shipped")),
     ("data", ("runout.scene", "runout.checks", "runout.simfiles", "runout.trajectory", "runout.dataset", "runout.metrics")),
-    ("engines", ("runout.transfer", "runout.mpm", "runout.gns", "runout.neural_mpm", "runout.learned")),
+    ("engines", ("runout.transfer", "runout.memory", "runout.mpm", "runout.gns", "runout.neural_mpm", "runout.learned")),
     ("views", ("runout.plots", "runout.vtk")),
     ("applications", ("runout.families", "runout.train", "runout.train_settings", "runout.inverse", "runout.evaluate", "runout.compare",
                       "runout.generate", "runout.demo", "runout.validate", "runout.validate_figures", "runout.mpm_run",

@@ -176,6 +176,24 @@ def test_the_model_file_alone_selects_the_neural_mpm(tiny_checkpoint, tmp_path, 
     assert "neural MPM" in meta.get("name", "") or "neural MPM" in str(meta)
 
 
+def test_a_neural_mpm_rollout_loads_neither_warp_nor_the_mpm(tiny_checkpoint, tmp_path):
+    """A learned engine's command pays for no solver it does not run (issue 57 item 6)."""
+    import subprocess
+    import sys
+
+    from runout.scene import save_scene
+
+    save_scene(scene_from_dict({**COLUMN, "time": {"frames": 9}}, "column"), tmp_path / "column.toml")
+    argv = ["rollout", "--model", str(tiny_checkpoint), str(tmp_path / "column.toml"), "--out", str(tmp_path / "r"),
+            "--no-animation", "--stop-speed", "0"]
+    probe = ("import sys\nfrom runout.cli import main\nmain(sys.argv[1:])\n"
+             "print(sorted(m for m in sys.modules if m.split('.')[0] in ('warp', 'meshio') or m.startswith('runout.mpm')))")
+    done = subprocess.run([sys.executable, "-c", probe, *argv], capture_output=True, text=True,
+                          env={**__import__("os").environ, "PYTHONPATH": str(REPO / "src"), "OMP_NUM_THREADS": "1"})
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip().splitlines()[-1] == "[]"
+
+
 def test_a_checkpoint_of_one_engine_where_the_other_is_asked_for_is_one_sentence(tiny_checkpoint, tmp_path, capsys):
     from runout.scene import save_scene
     from test_cli_exits import one_sentence, run

@@ -15,7 +15,6 @@ from runout.outputs import check_folder, claim
 from runout.plots import save_animation, save_frame
 from runout.scene import load_scene
 from runout.trajectory import Trajectory
-from runout.vtk import write_vtk
 
 MPM_FILES = ("trajectory.npz", "metadata.json", "initial.png", "final.png")
 
@@ -45,5 +44,7 @@ def run_mpm(
     if animate:
         save_animation([traj], out / "animation.gif", labels=["MPM"])
     if vtk:
+        from runout.vtk import write_vtk  # meshio loads only when asked for
+
         write_vtk(traj, out / "vtk")
     return traj, writes

@@ -226,7 +226,7 @@ def check_range(option: str, value, lo, hi, unit: str = "", lo_open: bool = Fals
 
 def check_rollout_memory(points: int, frames: int, device: str) -> None:
     """Refuse a rollout whose frames (float32 x, y, held about three times) exceed the memory."""
-    from runout.mpm.budget import GIB, device_memory
+    from runout.memory import GIB, device_memory
 
     need = 3 * 8 * points * frames
     have = device_memory(device)

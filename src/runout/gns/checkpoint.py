@@ -54,8 +54,12 @@ def save_checkpoint(path: str | Path, simulator: GraphNetworkSimulator, **traini
 def read_checkpoint(path: str | Path) -> dict:
     """The checkpoint dictionary (tensors on CPU), checked for the keys a model needs and
     for plain data only (runout.learned.files.read_plain)."""
+    return check_checkpoint(read_plain(path), path)
+
+
+def check_checkpoint(ckpt: object, path: str | Path) -> dict:
+    """A file's contents as read (runout.learned.files.read_plain), checked as read_checkpoint does."""
     path = Path(path)
-    ckpt = read_plain(path)
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         found = ckpt.get("format") if isinstance(ckpt, dict) else type(ckpt).__name__
         raise InputError(f"{path}: format is {found!r}; expected a runout GNS checkpoint ({FORMAT!r}).")

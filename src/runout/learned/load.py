@@ -18,7 +18,11 @@ from runout.learned.files import engine_of, read_plain
 
 def engine_name(path: str | Path) -> str:
     """The engine a checkpoint file holds ("gns" or "neural-mpm"); InputError for any other file."""
-    found = engine_of(read_plain(path))
+    return _engine_named(read_plain(path), path)
+
+
+def _engine_named(contents: object, path: str | Path) -> str:
+    found = engine_of(contents)
     if found not in ENGINE_NAMES:
         raise InputError(f"{path}: is not a checkpoint of a runout learned engine ({', '.join(ENGINE_NAMES)}); "
                          f"it names {found!r}." if found else
@@ -31,15 +35,16 @@ def load_engine(path: str | Path, device: str | torch.device = "cpu", expect: st
     was asked for (--engine); a file of another engine is refused with one sentence."""
     if expect is not None and expect not in ENGINE_NAMES:
         raise InputError(f"--engine {expect!r} must be one of {', '.join(ENGINE_NAMES)}.")
-    name = engine_name(path)
+    contents = read_plain(path)  # read once: the engine's own checks take these contents
+    name = _engine_named(contents, path)
     if expect is not None and expect != name:
         raise InputError(f"{path}: holds a {name} model, but --engine {expect} was asked for; "
                          f"give a {expect} checkpoint or leave --engine out (the file names its engine).")
     if name == "gns":
-        from runout.gns.checkpoint import load_simulator
+        from runout.gns.checkpoint import check_checkpoint, simulator_from_checkpoint
         from runout.gns.engine import GnsEngine
 
-        return GnsEngine(load_simulator(path, device))
-    from runout.neural_mpm.checkpoint import load_engine as load_neural_mpm
+        return GnsEngine(simulator_from_checkpoint(check_checkpoint(contents, path), path).to(device).eval())
+    from runout.neural_mpm.checkpoint import check_checkpoint, engine_from_checkpoint
 
-    return load_neural_mpm(path, device)
+    return engine_from_checkpoint(check_checkpoint(contents, path), path).to(device).eval()

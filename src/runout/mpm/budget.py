@@ -13,16 +13,15 @@ trajectory) and half a GiB for the interpreter and torch.
 from __future__ import annotations
 
 import math
-import os
 from dataclasses import dataclass
 
 import torch
 
 from runout.errors import InputError
+from runout.memory import GIB, device_memory, host_memory
 from runout.mpm.setup import grid_shape, substeps_per_frame
 from runout.scene import Scene, fill_points
 
-GIB = 1024**3
 BYTES_PER_POINT = 8 * 1024  # state and substep temporaries, float64
 BYTES_PER_NODE = 256  # grid mass, momentum, velocity and the per-node temporaries
 BYTES_PER_POINT_FRAME = 3 * 2 * 4  # float32 (x, y), held three times
@@ -55,18 +54,6 @@ def estimate(scenes: list[Scene], frames: int | None = None) -> Estimate:
         device_bytes=points * BYTES_PER_POINT + nodes * BYTES_PER_NODE,
         host_bytes=points * n_frames * BYTES_PER_POINT_FRAME + BASE_BYTES,
     )
-
-
-def host_memory() -> int:
-    """Bytes of physical memory of this machine."""
-    return os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-
-
-def device_memory(device: str | torch.device) -> int:
-    device = torch.device(device)
-    if device.type == "cuda" and torch.cuda.is_available():
-        return torch.cuda.get_device_properties(device).total_memory
-    return host_memory()
 
 
 def check_budget(scenes: list[Scene], frames: int | None = None, device="cpu", source: str = "the scene") -> Estimate:

@@ -33,7 +33,11 @@ def save_checkpoint(path: str | Path, engine: NeuralMPM, **training_state) -> Pa
 
 def read_checkpoint(path: str | Path) -> dict:
     """The checkpoint's contents, checked: a neural-MPM file, its config in range, finite weights."""
-    ckpt = read_plain(path)
+    return check_checkpoint(read_plain(path), path)
+
+
+def check_checkpoint(ckpt: object, path: str | Path) -> dict:
+    """A file's contents as read (runout.learned.files.read_plain), checked as read_checkpoint does."""
     found = engine_of(ckpt)
     if found != ENGINE_NAME:
         raise InputError(f"{path}: holds {'a ' + found if found else 'no'} engine's model where a {ENGINE_NAME} "

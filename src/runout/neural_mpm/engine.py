@@ -124,7 +124,7 @@ class NeuralMPM(nn.Module):
         x0, velocity = start_state(start.positions[0], start.start_velocity())
         ptype = torch.from_numpy(np.asarray(start.particle_type))
         material = torch.from_numpy(start.material_features(self.material_width))
-        with torch.no_grad():
+        with torch.inference_mode():  # no gradient wanted: autograd neither records nor checks versions
             frames = self.rollout(x0, ptype, material, np.asarray(start.bounds, dtype=np.float32), n_frames, velocity,
                                   stop_speed=None if stop_speed is None else stop_speed * self.config.frame_dt,
                                   progress=progress)
@@ -157,6 +157,11 @@ class NeuralMPM(nn.Module):
         cells = [math.ceil(float(s) / dx - 1e-9) for s in size]
         shape = tuple(mult * math.ceil((c + 1 + 2 * pad) / mult) for c in cells)
         return bounds[:, :, 0] - pad * dx, shape
+
+    def layout(self, bounds: torch.Tensor) -> tuple[torch.Tensor, tuple[int, int], torch.Tensor]:
+        """(origins, (NX, NY), static channels) of the grids of scenes with bounds [B, 2, 2]."""
+        origin, shape = self.grid(bounds)
+        return origin, shape, self.static_channels(bounds, origin, shape)
 
     def static_channels(self, bounds: torch.Tensor, origin: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
         """[B, 2, NX, NY]: nodes on or outside a wall (1), nodes strictly inside the domain (1)."""
@@ -223,9 +228,11 @@ class NeuralMPM(nn.Module):
                 else torch.as_tensor(start_velocity, dtype=x.dtype, device=device) * cfg.frame_dt)
         velocities = step[None].expand(cfg.history, -1, -1)
         calls = math.ceil((n_frames - 1) / cfg.frames_per_call)
+        layout = self.layout(pts.bounds)  # the same grid for every call
         out = [x[None]]
         for k in tqdm(range(calls), disable=not progress, desc="neural MPM rollout", unit="call"):
-            frames, velocities = self.advance(out[-1][-1], velocities, pts, 1, checkpoint, keep_velocities=True)
+            frames, velocities = self.advance(out[-1][-1], velocities, pts, 1, checkpoint, keep_velocities=True,
+                                              layout=layout)
             out.append(frames)
             if not bool(torch.isfinite(frames[-1]).all()):
                 raise RolloutDiverged(f"the neural MPM produced non-finite positions by frame {(k + 1) * cfg.frames_per_call}.")
@@ -236,11 +243,11 @@ class NeuralMPM(nn.Module):
         return torch.cat(out)[:n_frames]
 
     def advance(self, x: torch.Tensor, velocities: torch.Tensor, pts: Points, calls: int,
-                checkpoint: bool = False, keep_velocities: bool = False):
+                checkpoint: bool = False, keep_velocities: bool = False, layout: tuple | None = None):
         """Positions [calls m, P, 2] of the frames after x [P, 2], chaining `calls` calls (and the
-        last `history` frame velocities after them when keep_velocities)."""
-        origin, shape = self.grid(pts.bounds)
-        static = self.static_channels(pts.bounds, origin, shape)
+        last `history` frame velocities after them when keep_velocities). layout: self.layout of
+        pts.bounds, when the caller keeps it from call to call."""
+        origin, shape, static = self.layout(pts.bounds) if layout is None else layout
         h = self.config.history
         out = []
         for _ in range(calls):
