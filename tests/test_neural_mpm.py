@@ -12,6 +12,7 @@ import torch
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.evaluate.heldout import scene_scores, standing_still
 from runout.mpm import simulate
+from runout.neural_mpm.checkpoint import read_checkpoint
 from runout.neural_mpm.engine import NeuralMPM, NeuralMPMConfig
 from runout.neural_mpm.training import BEST, CHECKPOINT, TrainSettings, evaluate, rollout_like, train
 from runout.scene import scene_from_dict
@@ -133,6 +134,23 @@ def test_a_resumed_run_continues_exactly(dataset, tmp_path):
         assert torch.equal(a, b), name
 
 
+def test_a_run_resumed_on_other_datasets_measures_its_ranges_again(dataset, column, tmp_path, capsys):
+    wide = _shifted_dataset(column, tmp_path / "wide", 200.0)
+    common = dict(batch_size=2, valid_every=0, progress=False, out=str(tmp_path / "run"))
+    train(TrainSettings(data=str(dataset), steps=1, **common), TINY)
+    assert read_checkpoint(tmp_path / "run" / CHECKPOINT)["data_ranges"]["domain_m"] == [96.0, 48.0]
+    capsys.readouterr()
+    both = f"{dataset},{wide}"
+    train(TrainSettings(data=both, steps=2, **common), TINY, resume=True)
+    said = capsys.readouterr().err
+    assert said.count("\n") == 1 and "training ranges are measured again" in said and str(wide) in said
+    ranges = read_checkpoint(tmp_path / "run" / CHECKPOINT)["data_ranges"]
+    assert ranges["domain_m"] == [200.0, 48.0] and "wide" in ranges["source"]
+    train(TrainSettings(data=both, steps=3, **common), TINY, resume=True)  # the same list again: the record kept
+    assert "measured again" not in capsys.readouterr().err
+    assert read_checkpoint(tmp_path / "run" / CHECKPOINT)["data_ranges"] == ranges
+
+
 def test_kinematic_points_never_move(column):
     engine = NeuralMPM(TINY)
     for p in engine.parameters():
@@ -212,7 +230,7 @@ def test_a_checkpoint_of_one_engine_where_the_other_is_asked_for_is_one_sentence
 
 
 def test_a_weight_average_is_what_is_scored_and_saved_and_it_resumes_exactly(dataset, column, tmp_path):
-    from runout.neural_mpm.checkpoint import load_engine, read_checkpoint, ship
+    from runout.neural_mpm.checkpoint import load_engine, ship
     from runout.neural_mpm.training import evaluate
 
     common = dict(data=str(dataset), steps=6, batch_size=2, valid_every=6, valid_count=1, save_every=3, ema=0.5,
@@ -237,7 +255,7 @@ def test_a_weight_average_is_what_is_scored_and_saved_and_it_resumes_exactly(dat
 
 
 def test_a_shipped_file_holds_the_engine_and_the_resume_file_the_run(dataset, tmp_path):
-    from runout.neural_mpm.checkpoint import load_engine, read_checkpoint, ship
+    from runout.neural_mpm.checkpoint import load_engine, ship
 
     engine = train(TrainSettings(data=str(dataset), out=str(tmp_path / "run"), steps=2, batch_size=2, valid_every=0,
                                  progress=False), TINY)

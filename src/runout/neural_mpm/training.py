@@ -9,7 +9,8 @@ from its own predictions as it will be rolled out. The draws of step n come from
 seeded with (seed, n): a resumed run draws what an unbroken one would have. The learning rate
 falls from lr to lr_final over lr_decay_steps steps (a new run's default: its `steps`), stored
 in the checkpoint, so a run resumed with a larger `steps` goes on at lr_final instead of
-starting its decay again. A run stops at `steps`, at `max_hours` of wall time, at
+starting its decay again. A run resumed with another --data list than its last session's
+measures its training ranges (data_ranges) again over the new list and says so. A run stops at `steps`, at `max_hours` of wall time, at
 `max_cpu_hours` of its own CPU time (the measure of the equal-CPU pilots: what the process
 used on every thread, training and validation, over every session of the run), or on Ctrl-C
 or SIGTERM, and is validated and saved on the step it ends on. With `ema` > 0 an exponential moving average of the weights
@@ -22,6 +23,7 @@ per event: start, loss (every log_every steps), valid (the measure's dataset, th
 from __future__ import annotations
 
 import math
+import sys
 import time
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field, replace
@@ -122,7 +124,7 @@ class Run:
             torch.manual_seed(settings.seed)
             engine = NeuralMPM(config)
         optimizer = torch.optim.Adam(engine.parameters(), lr=settings.lr)
-        engine.data_ranges = _ranges(settings, sampler) if state is None else state.get("data_ranges")
+        engine.data_ranges = trained_ranges(settings, sampler, state, out / CHECKPOINT)
         run = cls(settings, engine, optimizer, sampler, _heldout(settings), LogFile(out / LOG), extra=_heldout_extra(settings))
         averaged = None
         if state is not None:
@@ -229,6 +231,21 @@ def with_schedule(settings: TrainSettings, state: dict | None, path: Path) -> Tr
         tqdm.write(f"{path} keeps its learning-rate schedule: from {settings.lr:g} to {settings.lr_final:g} over "
                    f"{stored:g} steps, whatever --steps says (--lr-decay-steps changes it).")
     return replace(settings, lr_decay_steps=given if given is not None else stored if stored is not None else settings.steps)
+
+
+def trained_ranges(settings: TrainSettings, sampler: WindowSampler, state: dict | None, path: Path) -> dict | None:
+    """What the engine is trained on: measured over the run's datasets for a new run and for a
+    resume given other datasets than its last session's (which says so on stderr), else the
+    checkpoint's record. Only the record changes: the engine's velocity_scale stays the checkpoint's."""
+    if state is None:
+        return _ranges(settings, sampler)
+    stored = (state.get("train") or {}).get("data")
+    folders = [Path(d) for d in datasets(settings)]
+    if stored is None or [Path(d) for d in datasets(replace(settings, data=stored))] == folders:
+        return state.get("data_ranges")
+    tqdm.write(f"{path} was trained on {stored}; its training ranges are measured again over --data {settings.data}.",
+               file=sys.stderr)
+    return _ranges(settings, sampler)
 
 
 def datasets(settings: TrainSettings) -> list[str]:
