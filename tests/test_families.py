@@ -1,6 +1,7 @@
 """Scene families: every sample lies in the paper's ranges and tiles its layers exactly."""
 
 from collections import Counter
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -9,12 +10,13 @@ from typer.testing import CliRunner
 from runout.cli.app import app
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.families import (
-    BLOCK_COUNT, BLOCK_SIDE, BLOCK_SPEED, COLUMN_STUDY_CLEARANCE, COLUMN_STUDY_GEOMETRIES, DOMAIN_HEIGHT, GROUND_TOP,
-    STAGES, family_sequence, sample, sample_for_index, vertex_ranges,
+    BLOCK_COUNT, BLOCK_SIDE, BLOCK_SPEED, COLUMN_STUDY_CLEARANCE, COLUMN_STUDY_GEOMETRIES, FOUR_LAYER_CLEARANCE,
+    FOUR_LAYER_SLOPE, GROUND_TOP, HEADROOM, MOUND_BASE, MOUND_CENTRE, MOUND_CREST, MOUND_FACE, MOUND_HEIGHT,
+    MOUND_LAYERS, MOUND_LEFT_RUN, MOUND_MIN_LAYER, STAGES, family_sequence, sample, sample_for_index, vertex_ranges,
 )
 from runout.scene import (
-    edges_cross, fill_points, points_in_polygon, polygon_area, polygon_self_intersects, polygons_overlap,
-    check_scene,
+    EXAMPLES, edges_cross, fill_points, load_scene, points_in_polygon, polygon_area, polygon_self_intersects,
+    polygons_overlap, check_scene,
 )
 
 N_SAMPLES = 200
@@ -31,13 +33,13 @@ def _assert_in(value, lo_hi, what):
     assert lo - 1e-9 <= value <= hi + 1e-9, f"{what} = {value} outside [{lo}, {hi}]"
 
 
-def _assert_disjoint(polys, width):
+def _assert_disjoint(polys, width, height):
     """No two polygons share interior: no proper edge crossings, and no point of a fine
     lattice lies inside two of them."""
     for a in range(len(polys)):
         for b in range(a + 1, len(polys)):
             assert not edges_cross(polys[a], polys[b], 1e-6), f"regions {a} and {b} cross"
-    gx, gy = np.meshgrid(np.arange(0.31, width, 2.1), np.arange(0.17, DOMAIN_HEIGHT, 2.1))
+    gx, gy = np.meshgrid(np.arange(0.31, width, 2.1), np.arange(0.17, height, 2.1))
     lattice = np.column_stack([gx.ravel(), gy.ravel()])
     cover = sum(points_in_polygon(lattice, p).astype(int) for p in polys)
     assert cover.max() <= 1, "two regions overlap"
@@ -50,6 +52,8 @@ def _outline(s):
         return [(0, GROUND_TOP), v["[3]"], v["[9]"], v["[8]"]]
     if s.family == "c":
         return [(0, GROUND_TOP), v["[3]"], v["[7]"], v["[6]"]]
+    if s.family == "mound":
+        return [v["[0]"], v["[1]"], v["[2]"], v["[3]"]]
     found = np.array([v[k] for k in ("[4]", "[5]", "[6]", "[7]")])
     lift = lambda k: (v[k][0], float(np.interp(v[k][0], found[:, 0], found[:, 1])) + v[k][1])  # noqa: E731
     x0, x3 = v["[0]"][0], v["[3]"][0]
@@ -60,11 +64,12 @@ def _outline(s):
 @pytest.mark.parametrize("stage,family", CASES)
 def test_samples_stay_in_ranges_and_tile_without_gaps(stage, family):
     st = STAGES[stage]
-    table = vertex_ranges(family, st.width)
+    tabled = family in ("a", "b", "c", "d") or (family == "column" and st.column_base is None)  # Table A.1's vertices
+    table = vertex_ranges(family, st.width) if tabled else {}
     for s in _samples(stage, family):
         scene = s.scene
         assert scene.domain.width == st.width and scene.domain.height == st.height
-        for label, (x, y) in s.vertices.items() if st.column_base is None else ():
+        for label, (x, y) in s.vertices.items() if tabled else ():
             _assert_in(x, table[label][0], f"{family}{label}.x")
             _assert_in(y, table[label][1], f"{family}{label}.y")
         for m in scene.materials.values():
@@ -79,10 +84,10 @@ def test_samples_stay_in_ranges_and_tile_without_gaps(stage, family):
             assert polygon_area(p) > 0 and not polygon_self_intersects(p)
             assert p[:, 0].min() >= 0 and p[:, 0].max() <= st.width
             assert p[:, 1].min() >= 0 and p[:, 1].max() <= st.height
-        _assert_disjoint(polys, st.width)
+        _assert_disjoint(polys, st.width, st.height)
         soil = [r for r in scene.regions if not r.fixed]
         assert len({r.material for r in soil}) == len(soil), "each soil region has its own material"
-        if family in ("b", "c", "d"):
+        if family in ("b", "c", "d", "mound"):
             tiled = sum(polygon_area(np.asarray(r.polygon)) for r in soil)
             assert tiled == pytest.approx(polygon_area(np.asarray(_outline(s), dtype=float)), rel=1e-9)
 
@@ -96,6 +101,15 @@ def test_every_region_holds_points_at_the_paper_spacing(stage, family):
             assert (pts.material_id == mid).sum() >= 10, f"{r.material} is a sliver"
         fixed_types = pts.particle_type[pts.fixed]
         assert (fixed_types == PARTICLE_TYPE_KINEMATIC).all()
+
+
+def test_every_mound_layer_holds_a_cell_of_points_at_the_stage_spacing():
+    """At the 8 m cells `mounds` is generated at (4 m spacing), every layer holds at least a
+    cell's 2 x 2 points: it is at least 8 m thick and the crest at least 8 m wide."""
+    for s in _samples("mounds", "mound", n=50, seed=11):
+        scene = replace(s.scene, domain=replace(s.scene.domain, cell_size=8.0))
+        check_scene(scene, "a mound at 8 m cells")
+        assert np.bincount(fill_points(scene).material_id, minlength=len(scene.materials)).min() >= 4
 
 
 def test_blocks_are_squares_above_the_ground_with_bounded_velocities():
@@ -147,6 +161,97 @@ def test_the_columns_stage_spans_the_column_study_but_leaves_its_cases_out():
     assert min(phis) < 2.0 and max(phis) > 43.0 and min(cs) < 10.0 and max(cs) > 70.0
 
 
+def _mound_shape(s) -> dict:
+    """A mound's shape from its corners: sizes in m, the left face's share of the run, face angles in degrees."""
+    (x0, _), (x1, _), (x2, height), (x3, _) = (s.vertices[k] for k in ("[0]", "[1]", "[2]", "[3]"))
+    left, right = x3 - x0, x1 - x2
+    return {"base": x1 - x0, "height": height, "crest": x2 - x3, "left_run": left / (left + right),
+            "centre": (x0 + x1) / 2, "faces": np.degrees(np.arctan2(height, [left, right]))}
+
+
+def test_mounds_span_the_four_layer_slope_but_leave_its_geometry_out():
+    """The `mounds` stage draws layered mounds on the rough base over ranges with the paper's
+    four-layer slope inside (its domain, 300 m base, 150 m height, 60 m crest, 51 deg faces,
+    four layers, its materials), never within FOUR_LAYER_CLEARANCE m of its geometry."""
+    st = STAGES["mounds"]
+    assert (st.width, st.height) == (1000.0, 200.0) and st.friction_range == (0.0, 45.0) and st.cohesion_range == (0.0, 75.0)
+    slope = load_scene(EXAMPLES / "four_layer_slope.toml")
+    corners = np.concatenate([np.asarray(r.polygon) for r in slope.regions])
+    crest = corners[corners[:, 1] == corners[:, 1].max(), 0]
+    assert (np.ptp(corners[:, 0]), np.ptp(corners[:, 1]), np.ptp(crest)) == FOUR_LAYER_SLOPE
+    assert (slope.domain.width, slope.domain.height) == (st.width, st.height)
+    ranges = {"base": MOUND_BASE, "height": MOUND_HEIGHT, "left_run": MOUND_LEFT_RUN, "centre": MOUND_CENTRE}
+    drawn = {key: [] for key in ("base", "height", "crest_share", "left_run", "centre", "faces", "layers", "phi", "c")}
+    for s in _samples("mounds", "mound", n=400):
+        assert s.scene.domain.base_friction == slope.domain.base_friction == np.inf  # rough, and no ground strip
+        assert not any(r.fixed for r in s.scene.regions)
+        shape = _mound_shape(s)
+        for key, r in ranges.items():
+            _assert_in(shape[key], r, key)
+            drawn[key].append(shape[key])
+        _assert_in(shape["crest"] / shape["base"], MOUND_CREST, "crest share")
+        for face in shape["faces"]:
+            _assert_in(face, MOUND_FACE, "face angle")
+        assert shape["height"] <= st.height - HEADROOM and shape["crest"] >= MOUND_MIN_LAYER
+        assert any(abs(a - b) > FOUR_LAYER_CLEARANCE
+                   for a, b in zip((shape["base"], shape["height"], shape["crest"]), FOUR_LAYER_SLOPE))
+        top = 0.0
+        for r in s.scene.regions:  # bottom first: each a horizontal band resting on the one below
+            y = np.unique(np.asarray(r.polygon)[:, 1])
+            assert len(y) == 2 and y[0] == top and y[1] - y[0] >= MOUND_MIN_LAYER
+            top = y[1]
+        assert top == shape["height"]
+        _assert_in(len(s.scene.regions), MOUND_LAYERS, "layers")
+        drawn["crest_share"].append(shape["crest"] / shape["base"])
+        drawn["faces"] += list(shape["faces"])
+        drawn["layers"].append(len(s.scene.regions))
+        drawn["phi"] += [m.friction_angle for m in s.scene.materials.values()]
+        drawn["c"] += [m.cohesion for m in s.scene.materials.values()]
+    # the slope's values lie inside what is drawn
+    slope_values = {"base": 300.0, "height": 150.0, "crest_share": 0.2, "left_run": 0.5, "centre": 500.0,
+                    "faces": 51.3, "layers": 4}
+    for key, value in slope_values.items():
+        assert min(drawn[key]) < value <= max(drawn[key]), key
+    for m in slope.materials.values():
+        assert min(drawn["phi"]) < m.friction_angle < max(drawn["phi"]) and min(drawn["c"]) < m.cohesion < max(drawn["c"])
+    assert min(drawn["phi"]) < 2.0 and max(drawn["phi"]) > 43.0 and min(drawn["c"]) < 3.0 and max(drawn["c"]) > 72.0
+    assert set(drawn["layers"]) == {2, 3, 4}
+
+
+class _Scripted:
+    """A stand-in random generator that returns the given values in turn."""
+
+    def __init__(self, *values):
+        self.values = list(values)
+
+    def uniform(self, lo, hi, size=None):
+        value = self.values.pop(0)
+        assert lo <= np.min(value) and np.max(value) <= hi
+        return np.asarray(value) if size is not None else value
+
+    def integers(self, lo, hi):
+        return self.values.pop(0)
+
+
+def test_the_four_layer_slope_is_redrawn_and_a_mound_just_beside_it_is_not(monkeypatch):
+    """The slope's own draw (base 300, height 150, crest share 0.2, symmetric, centre 500 m,
+    four layers split at 37.5, 75, 112.5 m) is refused, and only because of the exclusion: let
+    through, it is the example's regions exactly. 11 m off in any one of base, height, crest, it is drawn."""
+    import runout.families as families
+
+    st = STAGES["mounds"]
+    slope = [300.0, 150.0, 0.2, 0.5, 500.0, 4, [37.5, 75.0, 112.5]]
+    assert families._mound(st, _Scripted(*slope)) is None
+    for k, step in ((0, 11.0), (1, -11.0), (2, 11.0 / 300.0)):
+        moved = list(slope)
+        moved[k] += step
+        assert families._mound(st, _Scripted(*moved)) is not None, f"draw {k} moved by {step:g}"
+    monkeypatch.setattr(families, "_near_four_layer_slope", lambda *shape: False)
+    _, layers, fixed = families._mound(st, _Scripted(*slope))
+    example = load_scene(EXAMPLES / "four_layer_slope.toml").regions  # bottom first, as drawn
+    assert not fixed and np.allclose([r.polygon for r in layers], [r.polygon for r in example], atol=1e-9)
+
+
 @pytest.mark.parametrize("stage,family", CASES)
 def test_samples_pass_check_scene(stage, family):
     for s in _samples(stage, family, n=3, seed=3):
@@ -162,12 +267,13 @@ def test_family_mix_follows_the_paper_in_every_prefix():
     assert abs(shares["d"] - 100 * 500 / 1027) <= 1 and shares["column"] in (2, 3)
 
 
-def test_scene_k_depends_only_on_seed_stage_and_k():
-    a = sample_for_index(STAGES["finetune"], 5, 42, "d").scene
-    b = sample_for_index(STAGES["finetune"], 5, 42, "d").scene
-    c = sample_for_index(STAGES["finetune"], 5, 43, "d").scene
-    d = sample_for_index(STAGES["base"], 5, 42, "d").scene
-    assert a == b and a != c and a.regions != d.regions
+@pytest.mark.parametrize("stage,family", [("finetune", "d"), ("mounds", "mound")])
+def test_scene_k_depends_only_on_seed_stage_and_k(stage, family):
+    st = STAGES[stage]
+    a = sample_for_index(st, 5, 42, family).scene
+    assert a == sample_for_index(st, 5, 42, family).scene
+    assert a != sample_for_index(st, 5, 43, family).scene and a != sample_for_index(st, 6, 42, family).scene
+    assert a.regions != sample_for_index(replace(st, stage_id=st.stage_id + 10), 5, 42, family).scene.regions
 
 
 def test_families_command_draws_a_grid(tmp_path):
@@ -179,3 +285,5 @@ def test_families_command_draws_a_grid(tmp_path):
     assert len(list((tmp_path / "scenes").glob("*.toml"))) == 4
     bad = CliRunner().invoke(app, ["families", "--family", "a", "--stage", "finetune", "--out", str(out)])
     assert bad.exit_code != 0
+    mounds = CliRunner().invoke(app, ["families", "--family", "mound", "--count", "2", "--out", str(tmp_path / "m.png")])
+    assert mounds.exit_code == 0 and (tmp_path / "m.png").is_file(), mounds.output  # the mounds stage by default

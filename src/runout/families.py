@@ -1,12 +1,23 @@
 """Random scene families for training data (paper section "Datasets", Table A.1).
 
 Families: (a) square blocks thrown over uneven ground, (b) steep three-layer slopes,
-(c) gentle three-layer slopes, (d) zoned dams on a foundation, and granular column
-collapses. Three stages: `base` (phi 10-40 deg, c = 0, 300 x 152 m, families a-d),
-`finetune` (phi 3-35 deg, c 10-60 kPa, 400 x 152 m, families b-d and columns) and `columns`
+(c) gentle three-layer slopes, (d) zoned dams on a foundation, granular column collapses
+and layered mounds. Four stages: `base` (phi 10-40 deg, c = 0, 300 x 152 m, families a-d),
+`finetune` (phi 3-35 deg, c 10-60 kPa, 400 x 152 m, families b-d and columns), `columns`
 (columns alone over the range of the paper's column study, section 5.1.1: phi 0-45 deg,
 c 5-75 kPa, 1000 x 208 m like its cases, base 60-220 m, aspect H0 / L0 0.3-2.5 drawn
-log-uniformly; the study's own 75 cases stay out, see COLUMN_STUDY_GEOMETRIES).
+log-uniformly; the study's own 75 cases stay out, see COLUMN_STUDY_GEOMETRIES) and `mounds`
+(mounds alone, around the paper's four-layer slope, section 5.1.2: phi 0-45 deg, c 0-75 kPa
+per layer, 1000 x 200 m like it; the slope's own geometry stays out, see FOUR_LAYER_SLOPE).
+
+A mound is a trapezoid on the rough base (no ground strip, as in the example) cut into 2-4
+horizontal layers. Each range holds the slope's value (in brackets) with room on both sides,
+so a learned engine interpolates there: base width 150-500 m (300), height 60-180 m (150),
+crest 0-40 % of the base (20 %), the left face's share of the horizontal run base - crest
+0.25-0.75 (0.5; else the crest sits off centre and the faces differ), each face 20-75 deg (51:
+flatter faces barely move, steeper ones are the columns'), the base's centre at x 400-600 m
+(500), so each toe is at least 150 m from a wall (the slope's MPM run spreads about 165 m past
+its toes); layer boundaries uniform in the height, every layer at least MOUND_MIN_LAYER thick.
 
 Every vertex, size, velocity and property is drawn uniformly from its range
 (`vertex_ranges`). A draw whose layers would cross, overhang or be thinner than
@@ -32,6 +43,17 @@ COLUMN_STUDY_GEOMETRIES = ((200.0, 100.0), (150.0, 150.0), (100.0, 200.0))  # (L
 COLUMN_STUDY_CLEARANCE = 5.0  # m: a `columns` draw within this of a study geometry in both sides is redrawn
 GROUND_TOP = 4.0  # m, top of the fixed ground strip under the layered slopes (b, c)
 MIN_THICKNESS = 4.0  # m, thinnest layer or gap allowed (two point spacings at 4 m cells)
+MOUND_DOMAIN = (1000.0, 200.0)  # m, the paper's four-layer slope (examples/four_layer_slope.toml)
+MOUND_BASE = (150.0, 500.0)  # m, base width
+MOUND_HEIGHT = (60.0, 180.0)  # m
+MOUND_CREST = (0.0, 0.4)  # crest width / base width
+MOUND_LEFT_RUN = (0.25, 0.75)  # the left face's share of the horizontal run (base - crest); 0.5: symmetric
+MOUND_FACE = (20.0, 75.0)  # degrees from the horizontal, each side face
+MOUND_CENTRE = (400.0, 600.0)  # m, x of the base's centre: every toe 150 m or more from a wall
+MOUND_LAYERS = (2, 4)  # horizontal layers (drawn alike; thin draws redrawn, so 2 come most: 45, 34, 20 %)
+MOUND_MIN_LAYER = 8.0  # m, thinnest layer and narrowest crest (two point spacings at the stage's 8 m cells)
+FOUR_LAYER_SLOPE = (300.0, 150.0, 60.0)  # (base, height, crest) m of the paper's four-layer slope
+FOUR_LAYER_CLEARANCE = 10.0  # m: a `mounds` draw within this of FOUR_LAYER_SLOPE in all three is redrawn
 HEADROOM = 4.0  # m, free space kept under the domain's top wall
 BLOCK_CLEARANCE = 2.0  # m, gap between a block and the ground or another block
 MAX_DRAWS = 10_000  # rejection-sampling attempts before giving up (never reached in practice)
@@ -41,13 +63,14 @@ GROUND_E = 50.0  # MPa, linear-elastic ground and foundation
 POISSON = 0.3
 DENSITY = 1800.0  # kg/m^3
 
-FAMILIES = ("a", "b", "c", "d", "column")
+FAMILIES = ("a", "b", "c", "d", "column", "mound")
 FAMILY_TITLES = {
     "a": "blocks over uneven ground",
     "b": "steep three-layer slope",
     "c": "gentle three-layer slope",
     "d": "zoned dam on a foundation",
     "column": "column collapse",
+    "mound": "layered mound",
 }
 
 
@@ -73,6 +96,9 @@ STAGES = {
     "columns": Stage(
         "columns", 2, COLUMN_DOMAIN[0], (0.0, 45.0), (5.0, 75.0), {"column": 1}, 2, height=COLUMN_DOMAIN[1],
         column_base=(60.0, 220.0), column_aspect=(0.3, 2.5),
+    ),
+    "mounds": Stage(
+        "mounds", 3, MOUND_DOMAIN[0], (0.0, 45.0), (0.0, 75.0), {"mound": 1}, 2, height=MOUND_DOMAIN[1],
     ),
 }
 
@@ -124,7 +150,7 @@ def sample(stage: Stage, family: str, rng: np.random.Generator, name: str = "sce
     """Draw one scene of `family` for `stage`."""
     if family not in stage.mix:
         raise ValueError(f"family {family!r} is not part of stage {stage.name!r}")
-    draw = {"a": _blocks, "b": _steep_slope, "c": _gentle_slope, "d": _dam, "column": _column}[family]
+    draw = {"a": _blocks, "b": _steep_slope, "c": _gentle_slope, "d": _dam, "column": _column, "mound": _mound}[family]
     for _ in range(MAX_DRAWS):
         drawn = draw(stage, rng)
         if drawn is not None:
@@ -389,15 +415,51 @@ def _column_allowed(stage: Stage, base: float, height: float) -> bool:
                for b, h in COLUMN_STUDY_GEOMETRIES)
 
 
+# ----------------------------------------------------------------------------- mound
+
+
+def _mound(stage: Stage, rng):
+    """A trapezoid mound on the base cut into horizontal layers (the bottom one first). Its
+    corners: toes [0] (left), [1] (right) on the base, crest corners [2] (right), [3] (left)."""
+    base, height = _uniform(rng, MOUND_BASE), _uniform(rng, MOUND_HEIGHT)
+    crest = _uniform(rng, MOUND_CREST) * base
+    left_run = _uniform(rng, MOUND_LEFT_RUN) * (base - crest)
+    right_run = base - crest - left_run
+    x0 = _uniform(rng, MOUND_CENTRE) - base / 2
+    count = int(rng.integers(MOUND_LAYERS[0], MOUND_LAYERS[1] + 1))
+    levels = np.concatenate([[0.0], np.sort(rng.uniform(0.0, height, count - 1)), [height]])
+    faces = np.degrees(np.arctan2(height, [left_run, right_run]))
+    if _near_four_layer_slope(base, height, crest) or faces.min() < MOUND_FACE[0] or faces.max() > MOUND_FACE[1]:
+        return None
+    if np.diff(levels).min() < MOUND_MIN_LAYER:
+        return None
+
+    def across(y):  # the left and right faces at height y
+        return [(x0 + left_run * y / height, y), (x0 + base - right_run * y / height, y)]
+
+    layers = [across(lo) + across(hi)[::-1] for lo, hi in zip(levels, levels[1:])]
+    if min(_thinnest(np.array(q)) for q in layers) < MOUND_MIN_LAYER:
+        return None
+    corners = across(0.0) + across(height)[::-1]
+    v = {f"[{k}]": (float(x), float(y)) for k, (x, y) in enumerate(corners)}
+    return v, [_region(q) for q in layers], []
+
+
+def _near_four_layer_slope(base: float, height: float, crest: float) -> bool:
+    """Whether a mound is the paper's four-layer slope: within FOUR_LAYER_CLEARANCE m of it in
+    base, height and crest at once (at any offset, layering or strength)."""
+    return all(abs(value - slope) <= FOUR_LAYER_CLEARANCE for value, slope in zip((base, height, crest), FOUR_LAYER_SLOPE))
+
+
 def draw_family(
     family: str, out: Path, count: int = 12, stage: str | None = None, seed: int = 0,
     scenes: Path | None = None, force: bool = False,
 ) -> None:
-    """Draw `count` random scenes of a family (stage: base, or finetune for columns) into the
-    picture OUT, and write each as TOML into SCENES when given (`runout families`)."""
+    """Draw `count` random scenes of a family (stage: base, finetune for columns, mounds for
+    mounds) into the picture OUT, and write each as TOML into SCENES when given (`runout families`)."""
     if family not in FAMILIES:
         raise InputError(f"--family {family!r} must be one of {', '.join(FAMILIES)}.")
-    stage = stage or ("finetune" if family == "column" else "base")
+    stage = stage or {"column": "finetune", "mound": "mounds"}.get(family, "base")
     if stage not in STAGES:
         raise InputError(f"--stage {stage!r} must be one of {', '.join(STAGES)}.")
     if family not in STAGES[stage].mix:

@@ -31,7 +31,11 @@ from runout import checks
 from runout.contract import MATERIAL_FEATURE_NAMES, WindowSchema, radius_for_spacing, spacing_for_cells
 from runout.dataset import SPLITS
 from runout.errors import InputError, RunFailed
-from runout.families import BLOCK_SIDE, BLOCK_SPEED, STAGES, family_sequence, sample_for_index, vertex_ranges
+from runout.families import (
+    BLOCK_SIDE, BLOCK_SPEED, FOUR_LAYER_CLEARANCE, FOUR_LAYER_SLOPE, MOUND_BASE, MOUND_CENTRE, MOUND_CREST, MOUND_FACE,
+    MOUND_HEIGHT, MOUND_LAYERS, MOUND_LEFT_RUN, MOUND_MIN_LAYER, STAGES, family_sequence, sample_for_index,
+    vertex_ranges,
+)
 from runout.scene import MAX_FRAMES, Scene, TimeSpec, save_scene
 from runout.npz import SafeNpz, numeric
 from runout.simfiles import Moments, Simulation, check_simulation, write_metadata, write_simulations
@@ -359,7 +363,17 @@ def _ranges(stage) -> dict:
         "block_side_m": list(BLOCK_SIDE),
         "block_velocity_m_per_s": list(BLOCK_SPEED),
         "vertices_m": {f: vertex_ranges(f, stage.width) for f in stage.mix
-                       if not (f == "column" and stage.column_base is not None)},
+                       if f != "mound" and not (f == "column" and stage.column_base is not None)},
         **({"column_base_m": list(stage.column_base), "column_aspect": list(stage.column_aspect)}
            if stage.column_base is not None else {}),
+        **({"mound": _mound_ranges()} if "mound" in stage.mix else {}),
+    }
+
+
+def _mound_ranges() -> dict:
+    return {
+        "base_m": list(MOUND_BASE), "height_m": list(MOUND_HEIGHT), "crest_share": list(MOUND_CREST),
+        "left_run_share": list(MOUND_LEFT_RUN), "face_deg": list(MOUND_FACE), "centre_x_m": list(MOUND_CENTRE),
+        "layers": list(MOUND_LAYERS), "min_layer_m": MOUND_MIN_LAYER,
+        "excluded_base_height_crest_m": list(FOUR_LAYER_SLOPE), "excluded_within_m": FOUR_LAYER_CLEARANCE,
     }
