@@ -226,10 +226,10 @@ def with_schedule(settings: TrainSettings, state: dict | None, path: Path) -> Tr
     given = settings.lr_decay_steps
     if given is not None and stored is not None and given != stored:
         tqdm.write(f"--lr-decay-steps {given:g} replaces the {stored:g} steps of the learning-rate decay that "
-                   f"{path} was trained with.")
+                   f"{path} was trained with.", file=sys.stderr)
     elif given is None and stored is not None and stored != settings.steps:
         tqdm.write(f"{path} keeps its learning-rate schedule: from {settings.lr:g} to {settings.lr_final:g} over "
-                   f"{stored:g} steps, whatever --steps says (--lr-decay-steps changes it).")
+                   f"{stored:g} steps, whatever --steps says (--lr-decay-steps changes it).", file=sys.stderr)
     return replace(settings, lr_decay_steps=given if given is not None else stored if stored is not None else settings.steps)
 
 
