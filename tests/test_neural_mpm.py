@@ -310,6 +310,29 @@ def test_two_datasets_train_together_each_batch_from_one_domain(column, tmp_path
 
 
 
+def test_velocity_noise_leaves_the_scene_at_rest_and_the_targets_exact(dataset):
+    from runout.neural_mpm.windows import WindowSampler
+
+    sampler = WindowSampler.from_split(dataset, "train", history=3, material_width=2)
+    for n in range(20):
+        plain = sampler.draw(4, 8, 0.3, 0.5, torch.Generator().manual_seed(n))
+        noisy = sampler.draw(4, 8, 0.3, 0.5, torch.Generator().manual_seed(n), noise=0.05)
+        assert torch.equal(plain.x, noisy.x) and torch.equal(plain.targets, noisy.targets)  # same windows
+        assert torch.equal(plain.velocities, sampler.draw(4, 8, 0.3, 0.5, torch.Generator().manual_seed(n)).velocities)
+        kick = noisy.velocities - plain.velocities
+        soil = ~plain.points.fixed
+        assert torch.all(kick[:, ~soil] == 0)  # the ground never moves
+        for b in range(4):  # a window's velocities from frame 0 and before (zero in the data) stay exact
+            mine = soil & (plain.points.scene == b)
+            at_rest = (plain.velocities[:, mine] == 0).all(-1).all(-1)  # history entries before the data's first step
+            assert torch.all(kick[at_rest][:, mine] == 0)
+    kicks = torch.cat([(sampler.draw(8, 8, 0.0, 0.5, torch.Generator().manual_seed(n), noise=0.05).velocities
+                        - sampler.draw(8, 8, 0.0, 0.5, torch.Generator().manual_seed(n)).velocities).flatten()
+                       for n in range(20)])
+    kicks = kicks[kicks != 0]
+    assert float(kicks.std()) == pytest.approx(0.05, rel=0.05) and abs(float(kicks.mean())) < 0.005
+
+
 # ----------------------------------------------------------------------------- `runout train --engine neural-mpm`
 TINY_OPTIONS = ["--engine", "neural-mpm", "--batch-size", "2", "--valid-every", "0", "--log-every", "1", "--no-progress",
                 "--cell-size", "8", "--history", "2", "--frames-per-call", "4", "--widths", "8,16"]
@@ -374,6 +397,7 @@ def test_a_run_of_runout_train_stopped_by_ctrl_c_resumes_exactly(dataset, tmp_pa
     (["--engine", "mpm"], "--engine = mpm must be one of gns, neural-mpm."),
     (["--engine", "neural-mpm", "--calls", "0"], "--calls = 0 is outside the allowed range"),
     (["--engine", "neural-mpm", "--ema", "1.5"], "--ema = 1.5 is outside the allowed range"),
+    (["--engine", "neural-mpm", "--noise", "-0.1"], "--noise = -0.1 is outside the allowed range"),
     (["--engine", "neural-mpm", "--widths", "32,x"], "--widths = 32,x must be whole numbers"),
 ])
 def test_an_option_of_the_other_engine_or_out_of_range_is_one_sentence(tmp_path, capsys, argv, words):

@@ -192,7 +192,7 @@ def check_settings(cfg: TrainConfig, names=tuple(SETTING_LIMITS)) -> None:
 # The `runout train` options of one engine only (by parameter name): given with the other
 # engine, they are refused. Every other option serves both (--steps, --lr, --mirror, ...).
 ENGINE_OPTIONS = {
-    "gns": ("init", "device", "radius", "frame_stride", "pushforward", "compile_network", "noise", "rest_windows",
+    "gns": ("init", "device", "radius", "frame_stride", "pushforward", "compile_network", "rest_windows",
             "exact_rest", "onset_schedule", "overburden", "latent", "hidden", "message_passing", "keep_every", "bf16",
             "checkpoint_layers"),
     "neural-mpm": ("calls", "lr_final", "rest_share", "data_shares", "max_cpu_hours", "threads", "cell_size", "history",
@@ -204,7 +204,7 @@ ENGINES = tuple(ENGINE_OPTIONS)
 NEURAL_MPM_LIMITS = {
     "steps": (1, MAX_STEPS, True, False), "batch_size": (1, 64, True, False), "calls": (1, 64, True, False),
     "lr": (0.0, 1.0, False, True), "lr_final": (0.0, 1.0, False, True), "lr_decay_steps": (1.0, 1e12, False, False),
-    "rest_share": (0.0, 1.0, False, False), "mirror_share": (0.0, 1.0, False, False), "ema": (0.0, 0.99999, False, False),
+    "rest_share": (0.0, 1.0, False, False), "noise": (0.0, 10.0, False, False), "mirror_share": (0.0, 1.0, False, False), "ema": (0.0, 0.99999, False, False),
     "valid_every": (0, 1_000_000_000, True, False), "valid_count": (1, 10_000, True, False),
     "save_every": (1, 1_000_000_000, True, False), "log_every": (1, 1_000_000_000, True, False),
     "max_hours": (0.0, 1000.0, False, True), "max_cpu_hours": (0.0, 1e6, False, True), "threads": (1, 1024, True, False),

@@ -21,6 +21,11 @@ class TrainSettings:
     lr_decay_steps: float | None = None
     rest_share: float = 0.1  # windows that start at frame 0
     mirror_share: float = 0.5
+    # std of Gaussian noise on the input velocities of windows that start after frame 0, as a
+    # fraction of the data's velocity scale (RMS, m per frame); a window's velocities from
+    # before frame 0 (the scene at rest, where every rollout starts) stay exact. 0: none (the
+    # anchor's default)
+    noise: float = 0.0
     # decay per step of the weight average validated and saved as the model (0: the last step's
     # weights, as the pilots of rounds 1-3); the last step's weights are kept for --resume
     ema: float = 0.0

@@ -151,7 +151,8 @@ class Run:
         s = self.settings
         generator = torch.Generator().manual_seed(s.seed * 1_000_003 + step)
         span = s.calls * self.engine.config.frames_per_call
-        window = self.sampler.draw(s.batch_size, span, s.rest_share, s.mirror_share, generator)
+        window = self.sampler.draw(s.batch_size, span, s.rest_share, s.mirror_share, generator,
+                                   s.noise * self.engine.config.velocity_scale)
         loss = window_loss(self.engine, window, s.calls)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()

@@ -101,8 +101,12 @@ class WindowSampler:
     def __len__(self) -> int:
         return len(self.positions)
 
-    def draw(self, batch: int, span: int, rest_share: float, mirror_share: float, generator: torch.Generator) -> Window:
-        """`batch` windows of `span` target frames, drawn with `generator`, all from one dataset."""
+    def draw(self, batch: int, span: int, rest_share: float, mirror_share: float, generator: torch.Generator,
+             noise: float = 0.0) -> Window:
+        """`batch` windows of `span` target frames, drawn with `generator`, all from one dataset.
+        With `noise` > 0 (m per frame), Gaussian noise of that std is added to the soil's input
+        velocities of frames after frame 0, drawn last (noise 0 draws what it always drew); the
+        velocities of the scene at rest, frame 0 and before, stay exact, and so do the targets."""
         if len(self.members) == 1:
             sims = torch.randint(len(self), (batch,), generator=generator).tolist()
         else:
@@ -111,7 +115,7 @@ class WindowSampler:
         rest = (torch.rand(batch, generator=generator) < rest_share).tolist()
         mirror = (torch.rand(batch, generator=generator) < mirror_share).tolist()
         starts = torch.rand(batch, generator=generator).tolist()
-        xs, vels, targets, fixed, material, scene = [], [], [], [], [], []
+        xs, vels, targets, fixed, material, scene, known = [], [], [], [], [], [], []
         for b, (s, r, flip, u) in enumerate(zip(sims, rest, mirror, starts)):
             pos = self.positions[s]
             last = pos.shape[0] - 1 - span
@@ -131,8 +135,13 @@ class WindowSampler:
             fixed.append(self.fixed[s])
             material.append(self.material[s])
             scene.append(torch.full((pos.shape[1],), b, dtype=torch.long))
+            known.append((torch.arange(self.history) >= self.history - lead)[:, None] & ~self.fixed[s][None])
         points = Points(torch.cat(fixed), torch.cat(material), torch.cat(scene), self.bounds[sims])
-        return Window(torch.cat(xs), torch.cat(vels, 1), torch.cat(targets, 1), points)
+        velocities = torch.cat(vels, 1)
+        if noise > 0:
+            kick = torch.randn(velocities.shape, generator=generator) * noise
+            velocities = velocities + kick * torch.cat(known, 1)[..., None]
+        return Window(torch.cat(xs), velocities, torch.cat(targets, 1), points)
 
     def velocity_statistics(self) -> dict:
         """Mean and standard deviation per axis of the soil's frame velocities over the data
