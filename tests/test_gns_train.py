@@ -200,6 +200,18 @@ def test_resuming_against_data_of_another_schema_names_the_difference(tmp_path):
         train(config(cohesive, tmp_path / "run", steps=4, resume=True))
 
 
+def test_a_run_resumed_on_other_data_measures_its_training_ranges_again(tmp_path, capsys):
+    first = write_dataset(tmp_path / "first")
+    train(config(first, tmp_path / "run", steps=2))
+    train(config(first, tmp_path / "run", steps=3, resume=True))
+    assert "measured again" not in capsys.readouterr().err  # the same data: the record stands
+    assert "first" in read_checkpoint(tmp_path / "run" / "checkpoint.pt")["data_ranges"]["source"]
+    other = write_dataset(tmp_path / "other", n_train=2)
+    train(config(other, tmp_path / "run", steps=4, resume=True))
+    assert f"was trained on {first}; its training ranges are measured again over --data {other}" in capsys.readouterr().err
+    assert "other" in read_checkpoint(tmp_path / "run" / "checkpoint.pt")["data_ranges"]["source"]
+
+
 def test_fine_tuning_on_cohesive_data_starts_from_the_base_predictions(tmp_path):
     base_run = tmp_path / "base"
     train(config(write_dataset(tmp_path / "friction"), base_run, steps=20))

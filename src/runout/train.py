@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import sys
 import time
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, replace
@@ -103,8 +104,8 @@ def _train(cfg: TrainConfig, ctx: Context, hooks: tuple[Hook, ...] = ()) -> Grap
     cfg = _native_bf16(cfg, ctx)
     data = data.with_stride(simulator.frame_stride)
     data.check_windows(cfg.pushforward)
-    if state is None or simulator.data_ranges is None:  # new data: record what the model learns from
-        simulator.data_ranges = measure_ranges(
+    if state is None or simulator.data_ranges is None or _data_moved(cfg, state, ctx):  # new data: record what
+        simulator.data_ranges = measure_ranges(  # the model learns from
             [m.cpu().numpy() for m in data.material], [t.cpu().numpy() for t in data.particle_type],
             meta, simulator.radius, f"measured on {data.path}",
         )
@@ -334,6 +335,18 @@ def resumed_settings(cfg: TrainConfig, given: set[str]) -> TrainConfig:
                              f"unchanged; leave {option} out or start a new run in another --out.")
     schedule = {k: stored[k] for k in ("lr_init", "lr_decay_steps") if k in stored and k not in given}
     return replace(cfg, **schedule)
+
+
+def _data_moved(cfg: TrainConfig, state: dict, ctx: Context) -> bool:
+    """Whether a resumed run is given another --data than its checkpoint's last session (then
+    its training ranges are measured again, and rank 0 says so on stderr)."""
+    stored = _stored_settings(state).get("data")
+    if stored is None or Path(stored) == Path(cfg.data):
+        return False
+    if ctx.rank == 0:
+        tqdm.write(f"{Path(cfg.out) / CHECKPOINT} was trained on {stored}; its training ranges are measured again "
+                   f"over --data {cfg.data}.", file=sys.stderr)
+    return True
 
 
 def _stored_settings(ckpt: dict) -> dict:
