@@ -152,6 +152,25 @@ def test_a_run_resumed_on_other_datasets_measures_its_ranges_again(dataset, colu
     assert read_checkpoint(tmp_path / "run" / CHECKPOINT)["data_ranges"] == ranges
 
 
+def test_a_runs_log_draws_its_loss_and_the_held_out_error_of_each_dataset(dataset, column, tmp_path):
+    import json
+
+    from runout.evaluate.heldout_run import curves
+
+    wide = _shifted_dataset(column, tmp_path / "wide", 200.0)
+    run = tmp_path / "run"
+    train(TrainSettings(data=f"{dataset},{wide}", out=str(run), steps=4, batch_size=2, valid_every=2, valid_count=1,
+                        log_every=1, progress=False), TINY)
+    drawn = curves(run / "train.log.jsonl", tmp_path / "curves.png")
+    rows = [json.loads(line) for line in (run / "train.log.jsonl").read_text().splitlines()]
+    valid = [r for r in rows if r["event"] == "valid"]
+    assert drawn["last_step"] == 4 and (tmp_path / "curves.png").stat().st_size > 10_000
+    assert [(v["data"], v["step"]) for v in drawn["validation"]] == [(str(dataset), 2), (str(wide), 2), (str(dataset), 4),
+                                                                     (str(wide), 4)]
+    assert [v["position_error_m"] for v in drawn["validation"]] == [r["position_error_m"] for r in valid]
+    assert drawn["loss_last_1000_steps"] == pytest.approx(np.mean([r["loss"] for r in rows if r["event"] == "loss"]))
+
+
 def test_kinematic_points_never_move(column):
     engine = NeuralMPM(TINY)
     for p in engine.parameters():

@@ -261,7 +261,7 @@ def heldout(
     column: Path = typer.Option(EXAMPLES / "column_a1.toml", "--column", help="Column-collapse scene run by the MPM and the model from rest, filled at the model's point spacing."),
     no_column: bool = typer.Option(False, "--no-column", help="Skip the column run (e.g. for a friction-only base model)."),
     frames: int = typer.Option(240, "--frames", help="Frames of the column runs."),
-    log: Path = typer.Option(None, "--log", help="The training run's log.jsonl: also draw OUT/curves.png from it."),
+    log: Path = typer.Option(None, "--log", help="The training run's log (GNS: log.jsonl; neural MPM: train.log.jsonl, its held-out error of each dataset): also draw OUT/curves.png from it."),
     force: bool = FORCE,
 ) -> None:
     """Held-out scenes from rest (position error, fronts, extent, displacement, by family and start, beside standing still) and a column collapse against the MPM, for any learned engine; writes OUT/metrics.json."""

@@ -9,7 +9,8 @@ the file says which), as its model card and docs/training.md report it.
 2. A column collapse (by default examples/column_a1.toml) filled at the model's point spacing,
    run by the MPM and by the engine from rest for `frames` frames: normalised runout of each and
    their difference; OUT/column.png shows both.
-3. With a run's log.jsonl, its training and validation curves (OUT/curves.png).
+3. With a run's log (the GNS's log.jsonl or the neural MPM's train.log.jsonl), its training and
+   validation curves (OUT/curves.png).
 Everything goes to OUT/metrics.json.
 """
 
@@ -126,6 +127,8 @@ def curves(log: Path, path: Path) -> dict:
     import matplotlib.pyplot as plt
 
     rows = read_log(log)
+    if any(r.get("event") == "valid" and "position_error_m" in r for r in rows):
+        return _neural_mpm_curves(rows, path)
     loss = [(r["step"], r["loss"]) for r in rows if "loss" in r and "step" in r]
     valid = [(r["step"], r["valid_runout_error"], r["valid_position_mse_m2"]) for r in rows if "valid_runout_error" in r]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
@@ -151,3 +154,43 @@ def curves(log: Path, path: Path) -> dict:
     plt.close(fig)
     return {"last_step": steps[-1], "loss_last_1000_steps": float(np.mean([v for s, v in loss if s > steps[-1] - 1000])),
             "validation": [{"step": s, "runout_error": e, "position_mse_m2": m} for s, e, m in valid]}
+
+
+def _neural_mpm_curves(rows: list[dict], path: Path) -> dict:
+    """The neural MPM's train.log.jsonl drawn to `path`: its loss (soil position MSE over the K
+    calls, cells squared) and the held-out position error from rest (m) of each dataset it
+    validates on, against the step; the validation rows as a list."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    loss = [(r["step"], r["loss"]) for r in rows if r.get("event") == "loss"]
+    starts = [r for r in rows if r.get("event") == "start"]
+    measure = str((starts[0].get("settings") or {}).get("data", "the measure")).split(",")[0] if starts else "the measure"
+    valid = [{"data": r.get("data", measure), **{k: r[k] for k in ("step", "cpu_hours", "position_error_m", "front_error",
+                                                                   "runout_error") if k in r}}
+             for r in rows if r.get("event") == "valid" and "position_error_m" in r]
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
+    if loss:
+        steps, values = zip(*loss)
+        axes[0].semilogy(steps, values, lw=0.5, color="0.6", label="mean of each logged group")
+        width = max(1, len(values) // 50)
+        smooth = np.convolve(values, np.ones(width) / width, mode="valid")
+        axes[0].semilogy(steps[width - 1:], smooth, color="C0", label=f"running mean of {width}")
+        axes[0].legend(fontsize=8)
+    axes[0].set(xlabel="step", ylabel="training loss (position MSE, cells²)", title="training")
+    for k, data in enumerate(dict.fromkeys(v["data"] for v in valid)):
+        mine = [v for v in valid if v["data"] == data]
+        axes[1].plot([v["step"] for v in mine], [v["position_error_m"] for v in mine], "o-", ms=3, color=f"C{k + 1}",
+                     label=f"{data}{' (the measure)' if data == measure else ''}")
+    if valid:
+        axes[1].legend(fontsize=8)
+    axes[1].set(xlabel="step", ylabel="position error from rest (m)", title="held-out scenes from rest", ylim=(0, None))
+    for ax in axes:
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:g}k"))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    last = loss[-1][0] if loss else 0
+    return {"last_step": last, "loss_last_1000_steps": float(np.mean([v for s, v in loss if s > last - 1000])) if loss else None,
+            "validation": valid}
