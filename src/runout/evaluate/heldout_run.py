@@ -132,13 +132,8 @@ def curves(log: Path, path: Path) -> dict:
     loss = [(r["step"], r["loss"]) for r in rows if "loss" in r and "step" in r]
     valid = [(r["step"], r["valid_runout_error"], r["valid_position_mse_m2"]) for r in rows if "valid_runout_error" in r]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
-    steps, values = zip(*loss)
-    axes[0].semilogy(steps, values, lw=0.5, color="0.6", label="mean of each logged group")
-    width = max(1, len(values) // 50)
-    smooth = np.convolve(values, np.ones(width) / width, mode="valid")
-    axes[0].semilogy(steps[width - 1:], smooth, color="C0", label=f"running mean of {width}")
-    axes[0].set(xlabel="step", ylabel="training loss (normalised acceleration MSE)", title="training")
-    axes[0].legend(fontsize=8)
+    steps, _ = zip(*loss)
+    _loss_panel(axes[0], loss, "training loss (normalised acceleration MSE)")
     if valid:
         vs, ve, vm = zip(*valid)
         axes[1].plot(vs, 100 * np.abs(ve), "o-", color="C1", label="|runout error| (%)")
@@ -148,10 +143,7 @@ def curves(log: Path, path: Path) -> dict:
         axes[1].legend(loc="upper left", fontsize=8)
         twin.legend(loc="upper right", fontsize=8)
     axes[1].set(xlabel="step", ylabel="|runout error| (%)", title="validation rollouts")
-    for ax in axes:  # thousands of steps: six-digit tick labels run into each other
-        ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:g}k"))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, axes, path)
     return {"last_step": steps[-1], "loss_last_1000_steps": float(np.mean([v for s, v in loss if s > steps[-1] - 1000])),
             "validation": [{"step": s, "runout_error": e, "position_mse_m2": m} for s, e, m in valid]}
 
@@ -172,14 +164,7 @@ def _neural_mpm_curves(rows: list[dict], path: Path) -> dict:
                                                                    "runout_error") if k in r}}
              for r in rows if r.get("event") == "valid" and "position_error_m" in r]
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), constrained_layout=True)
-    if loss:
-        steps, values = zip(*loss)
-        axes[0].semilogy(steps, values, lw=0.5, color="0.6", label="mean of each logged group")
-        width = max(1, len(values) // 50)
-        smooth = np.convolve(values, np.ones(width) / width, mode="valid")
-        axes[0].semilogy(steps[width - 1:], smooth, color="C0", label=f"running mean of {width}")
-        axes[0].legend(fontsize=8)
-    axes[0].set(xlabel="step", ylabel="training loss (position MSE, cells²)", title="training")
+    _loss_panel(axes[0], loss, "training loss (position MSE, cells²)")
     for k, data in enumerate(dict.fromkeys(v["data"] for v in valid)):
         mine = [v for v in valid if v["data"] == data]
         axes[1].plot([v["step"] for v in mine], [v["position_error_m"] for v in mine], "o-", ms=3, color=f"C{k + 1}",
@@ -187,10 +172,29 @@ def _neural_mpm_curves(rows: list[dict], path: Path) -> dict:
     if valid:
         axes[1].legend(fontsize=8)
     axes[1].set(xlabel="step", ylabel="position error from rest (m)", title="held-out scenes from rest", ylim=(0, None))
-    for ax in axes:
-        ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda v, _: f"{v / 1000:g}k"))
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    _save(fig, axes, path)
     last = loss[-1][0] if loss else 0
     return {"last_step": last, "loss_last_1000_steps": float(np.mean([v for s, v in loss if s > last - 1000])) if loss else None,
             "validation": valid}
+
+
+def _loss_panel(ax, loss: list[tuple[int, float]], ylabel: str) -> None:
+    """The logged losses against the step (log scale) with a running mean over about 1/50 of them."""
+    if loss:
+        steps, values = zip(*loss)
+        ax.semilogy(steps, values, lw=0.5, color="0.6", label="mean of each logged group")
+        width = max(1, len(values) // 50)
+        smooth = np.convolve(values, np.ones(width) / width, mode="valid")
+        ax.semilogy(steps[width - 1:], smooth, color="C0", label=f"running mean of {width}")
+        ax.legend(fontsize=8)
+    ax.set(xlabel="step", ylabel=ylabel, title="training")
+
+
+def _save(fig, axes, path: Path) -> None:
+    import matplotlib.pyplot as plt
+    from matplotlib.ticker import FuncFormatter
+
+    for ax in axes:  # thousands of steps: six-digit tick labels run into each other
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v / 1000:g}k"))
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
