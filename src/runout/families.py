@@ -28,8 +28,8 @@ an upstream shell (left), a core and a downstream shell split at some height int
 an upper layer. Ranges (the example's value in brackets): base width 160-400 m (260), height
 30-96 m (60; 96 is the 100 m domain less HEADROOM), crest 10-40 m (20), the upstream face's
 share of the run base - crest 0.3-0.7 (0.5), each face 15-40 deg (26.6), the base's centre at
-x 350-450 m (400), so each toe is at least 150 m from a wall (the example's MPM run spreads
-about 50-60 m past its downstream toe in its 400 frames); the core 16-80 m wide at the base
+x 350-450 m (400), so each toe is at least 150 m from a wall (the example's outermost points
+move 47-62 m downstream in its 400 frames, at 8 and 4 m cells); the core 16-80 m wide at the base
 (40) and 25-75 % of the crest wide at the crest (50 %), its top centred on the crest, its
 centre line leaning -15 to 15 deg from the vertical (0); the downstream shell split at
 0.15-0.6 of the height (1/3).
