@@ -1,5 +1,6 @@
 """Scene families: every sample lies in the paper's ranges and tiles its layers exactly."""
 
+import hashlib
 from collections import Counter
 from dataclasses import replace
 
@@ -10,7 +11,9 @@ from typer.testing import CliRunner
 from runout.cli.app import app
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.families import (
-    BLOCK_COUNT, BLOCK_SIDE, BLOCK_SPEED, COLUMN_STUDY_CLEARANCE, COLUMN_STUDY_GEOMETRIES, FOUR_LAYER_CLEARANCE,
+    BLOCK_COUNT, BLOCK_SIDE, BLOCK_SPEED, COLUMN_STUDY_CLEARANCE, COLUMN_STUDY_GEOMETRIES, DAM_BASE, DAM_CENTRE,
+    DAM_CLEARANCE, DAM_CORE_BASE, DAM_CORE_CREST, DAM_CORE_LEAN, DAM_CREST, DAM_EXAMPLE, DAM_FACE, DAM_HEIGHT,
+    DAM_MIN_ZONE, DAM_SPLIT, DAM_UNDRAINED, DAM_UPSTREAM_RUN, FOUR_LAYER_CLEARANCE,
     FOUR_LAYER_SLOPE, GROUND_TOP, HEADROOM, MOUND_BASE, MOUND_CENTRE, MOUND_CREST, MOUND_FACE, MOUND_HEIGHT,
     MOUND_LAYERS, MOUND_LEFT_RUN, MOUND_MIN_LAYER, STAGES, family_sequence, sample, sample_for_index, vertex_ranges,
 )
@@ -52,7 +55,7 @@ def _outline(s):
         return [(0, GROUND_TOP), v["[3]"], v["[9]"], v["[8]"]]
     if s.family == "c":
         return [(0, GROUND_TOP), v["[3]"], v["[7]"], v["[6]"]]
-    if s.family == "mound":
+    if s.family in ("mound", "zoned_dam"):
         return [v["[0]"], v["[1]"], v["[2]"], v["[3]"]]
     found = np.array([v[k] for k in ("[4]", "[5]", "[6]", "[7]")])
     lift = lambda k: (v[k][0], float(np.interp(v[k][0], found[:, 0], found[:, 1])) + v[k][1])  # noqa: E731
@@ -252,6 +255,129 @@ def test_the_four_layer_slope_is_redrawn_and_a_mound_just_beside_it_is_not(monke
     assert not fixed and np.allclose([r.polygon for r in layers], [r.polygon for r in example], atol=1e-9)
 
 
+def _dam_shape(s) -> dict:
+    """A zoned dam's shape from its corners: sizes in m, shares, the core's lean and the faces in degrees."""
+    x = {k: s.vertices[f"[{k}]"][0] for k in range(10)}
+    height, split = s.vertices["[2]"][1], s.vertices["[8]"][1]
+    base, crest, up, down = x[1] - x[0], x[2] - x[3], x[3] - x[0], x[1] - x[2]
+    core_top, core_bottom = (x[6] + x[7]) / 2, (x[4] + x[5]) / 2
+    return {"base": base, "height": height, "crest": crest, "upstream_run": up / (up + down),
+            "centre": (x[0] + x[1]) / 2, "core_base": x[5] - x[4], "core_crest": (x[6] - x[7]) / crest,
+            "core_off_centre": core_top - (x[2] + x[3]) / 2,
+            "lean": np.degrees(np.arctan2(core_top - core_bottom, height)), "split": split / height,
+            "faces": np.degrees(np.arctan2(height, [up, down]))}
+
+
+def test_dams_span_the_example_dam_but_leave_its_geometry_out():
+    """The `dams` stage draws four-zone dams on the rough base of the inverse analysis's
+    800 x 100 m domain (examples/dam.toml) over ranges with the example's every value inside
+    (260 m base, 60 m height, 20 m crest, 26.6 deg faces, a 40 m core 10 m wide at the crest,
+    upright and centred, the downstream shell split at a third of the height), never within
+    DAM_CLEARANCE m of its geometry; the zones tile the outline (the area sums equal), each
+    at least DAM_MIN_ZONE thick, under the top wall less its headroom."""
+    st = STAGES["dams"]
+    assert (st.width, st.height) == (800.0, 100.0)
+    assert st.friction_range == (0.0, 45.0) and st.cohesion_range == (0.0, 110.0)
+    dam = load_scene(EXAMPLES / "dam.toml")
+    assert (dam.domain.width, dam.domain.height) == (st.width, st.height)
+    ranges = {"base": DAM_BASE, "height": DAM_HEIGHT, "crest": DAM_CREST, "upstream_run": DAM_UPSTREAM_RUN,
+              "centre": DAM_CENTRE, "core_base": DAM_CORE_BASE, "core_crest": DAM_CORE_CREST, "lean": DAM_CORE_LEAN,
+              "split": DAM_SPLIT}
+    drawn = {key: [] for key in [*ranges, "faces"]}
+    for s in _samples("dams", "zoned_dam", n=200):
+        domain = s.scene.domain
+        assert (domain.base_friction, domain.wall_friction) == (dam.domain.base_friction, dam.domain.wall_friction)
+        assert len(s.scene.regions) == 4 and not any(r.fixed for r in s.scene.regions)
+        shape = _dam_shape(s)
+        for key, r in ranges.items():
+            _assert_in(shape[key], r, key)
+            drawn[key].append(shape[key])
+        for face in shape["faces"]:
+            _assert_in(face, DAM_FACE, "face angle")
+        drawn["faces"] += list(shape["faces"])
+        assert shape["core_off_centre"] == pytest.approx(0.0, abs=1e-9)
+        outline = (shape["base"], shape["height"], shape["crest"])
+        assert any(abs(a - b) > DAM_CLEARANCE for a, b in zip(outline, DAM_EXAMPLE))
+        polys = [np.asarray(r.polygon) for r in s.scene.regions]
+        assert max(p[:, 1].max() for p in polys) == shape["height"] <= st.height - HEADROOM
+        assert sum(polygon_area(p) for p in polys) == pytest.approx(polygon_area(np.asarray(_outline(s))), rel=1e-9)
+        for a in range(4):
+            assert polygon_area(polys[a]) > 0 and not polygon_self_intersects(polys[a])
+            for b in range(a + 1, 4):
+                assert not polygons_overlap(polys[a], polys[b]), f"zones {a} and {b} overlap"
+        lower, upper = polys[2], polys[3]  # the downstream shell's layers meet at the split
+        assert lower[:, 1].max() == upper[:, 1].min() == pytest.approx(shape["split"] * shape["height"], abs=1e-9)
+    example = {"base": 260.0, "height": 60.0, "crest": 20.0, "upstream_run": 0.5, "centre": 400.0, "core_base": 40.0,
+               "core_crest": 0.5, "lean": 0.0, "split": 1 / 3, "faces": 26.57}
+    for key, value in example.items():
+        assert min(drawn[key]) < value < max(drawn[key]), key
+
+
+def test_the_example_dam_is_redrawn_and_a_dam_just_beside_it_is_not(monkeypatch):
+    """The example dam's own draw (base 260, height 60, crest 20, symmetric, centre 400 m, core
+    40 m at the base and half the crest at the top, upright, split at a third) is refused, and
+    only because of the exclusion: let through, it is examples/dam.toml's regions exactly
+    (upstream shell, core, downstream lower and upper). 11 m off in any one of base, height,
+    crest, it is drawn."""
+    import runout.families as families
+
+    st = STAGES["dams"]
+    dam = [260.0, 60.0, 20.0, 0.5, 400.0, 40.0, 0.5, 0.0, 1 / 3]
+    assert families._zoned_dam(st, _Scripted(*dam)) is None
+    for k, step in ((0, 11.0), (1, 11.0), (2, 11.0)):
+        moved = list(dam)
+        moved[k] += step
+        assert families._zoned_dam(st, _Scripted(*moved)) is not None, f"draw {k} moved by {step:g}"
+    monkeypatch.setattr(families, "_near_example_dam", lambda *shape: False)
+    _, zones, fixed = families._zoned_dam(st, _Scripted(*dam))
+    example = load_scene(EXAMPLES / "dam.toml").regions
+    assert not fixed and np.allclose([r.polygon for r in zones], [r.polygon for r in example], atol=1e-9)
+
+
+def test_a_zone_thinner_than_the_minimum_is_redrawn():
+    """A dam with a crest 12 m wider than the example's and a core half the crest wide there is
+    drawn (each shell ends 8 m wide at the crest); with the core three quarters of the crest,
+    each shell ends 4 m wide, 3.96 m from its crest corner to the core, under DAM_MIN_ZONE, and
+    the dam is refused."""
+    import runout.families as families
+
+    st = STAGES["dams"]
+    wide = [260.0, 60.0, 32.0, 0.5, 400.0, 40.0, 0.5, 0.0, 1 / 3]
+    assert families._zoned_dam(st, _Scripted(*wide)) is not None
+    wide[6] = 0.75
+    assert families._zoned_dam(st, _Scripted(*wide)) is None
+
+
+def test_a_quarter_of_the_dam_zones_are_undrained_and_the_rest_draw_phi_and_c_uniformly():
+    """Each zone is undrained clay (phi = 0 exactly, c = s_u from 0-110 kPa) with chance 1/4:
+    over 200 zones the share is within three binomial standard deviations of it; every other
+    zone has phi in (0, 45] deg, every zone c in [0, 110] kPa, and the undrained strengths span
+    the c range as the others do."""
+    materials = [m for s in _samples("dams", "zoned_dam", n=50, seed=13) for m in s.scene.materials.values()]
+    assert len(materials) == 200
+    undrained = [m for m in materials if m.friction_angle == 0.0]
+    assert abs(len(undrained) - 200 * DAM_UNDRAINED) <= 3 * np.sqrt(200 * DAM_UNDRAINED * (1 - DAM_UNDRAINED))
+    for m in materials:
+        assert m.friction_angle == 0.0 or 0.0 < m.friction_angle <= 45.0
+        _assert_in(m.cohesion, (0.0, 110.0), "c")
+    s_u = [m.cohesion for m in undrained]
+    assert min(s_u) < 15.0 and max(s_u) > 95.0
+
+
+def test_other_stages_draw_no_undrained_zones():
+    assert all(st.undrained_share == 0.0 for name, st in STAGES.items() if name != "dams")
+    assert STAGES["dams"].undrained_share == DAM_UNDRAINED
+
+
+def test_every_dam_zone_holds_a_cell_of_points_at_the_stage_spacing():
+    """At the 8 m cells `dams` is generated at (4 m spacing), every zone, its thin crest end
+    included, holds at least a cell's 2 x 2 points."""
+    for s in _samples("dams", "zoned_dam", n=50, seed=11):
+        scene = replace(s.scene, domain=replace(s.scene.domain, cell_size=8.0))
+        check_scene(scene, "a dam at 8 m cells")
+        assert np.bincount(fill_points(scene).material_id, minlength=len(scene.materials)).min() >= 4
+
+
 @pytest.mark.parametrize("stage,family", CASES)
 def test_samples_pass_check_scene(stage, family):
     for s in _samples(stage, family, n=3, seed=3):
@@ -267,7 +393,7 @@ def test_family_mix_follows_the_paper_in_every_prefix():
     assert abs(shares["d"] - 100 * 500 / 1027) <= 1 and shares["column"] in (2, 3)
 
 
-@pytest.mark.parametrize("stage,family", [("finetune", "d"), ("mounds", "mound")])
+@pytest.mark.parametrize("stage,family", [("finetune", "d"), ("mounds", "mound"), ("dams", "zoned_dam")])
 def test_scene_k_depends_only_on_seed_stage_and_k(stage, family):
     st = STAGES[stage]
     a = sample_for_index(st, 5, 42, family).scene
@@ -287,3 +413,35 @@ def test_families_command_draws_a_grid(tmp_path):
     assert bad.exit_code != 0
     mounds = CliRunner().invoke(app, ["families", "--family", "mound", "--count", "2", "--out", str(tmp_path / "m.png")])
     assert mounds.exit_code == 0 and (tmp_path / "m.png").is_file(), mounds.output  # the mounds stage by default
+    dams = CliRunner().invoke(app, ["families", "--family", "zoned_dam", "--count", "2", "--out", str(tmp_path / "d.png")])
+    assert dams.exit_code == 0 and (tmp_path / "d.png").is_file(), dams.output  # the dams stage by default
+
+
+def _fingerprint(scenes) -> str:
+    """A digest of scenes' domains, materials and regions, every number rounded to 1e-6 (m,
+    m/s, degrees, kPa, MPa) so that last-bit differences between platforms do not count."""
+
+    def rounded(x):
+        if isinstance(x, float):
+            return round(x, 6) + 0.0  # + 0.0: -0.0 becomes 0.0
+        return tuple(rounded(v) for v in x) if isinstance(x, (tuple, list)) else x
+
+    parts = []
+    for s in scenes:
+        materials = [(m.name, m.model, m.friction_angle, m.cohesion, m.youngs_modulus, m.poisson_ratio, m.density)
+                     for m in s.materials.values()]
+        regions = [(r.material, r.fixed, r.velocity, r.polygon) for r in s.regions]
+        parts.append(rounded((s.name, s.domain.width, s.domain.height, materials, regions)))
+    return hashlib.sha256(repr(parts).encode()).hexdigest()[:16]
+
+
+@pytest.mark.parametrize("stage,digest", [
+    ("base", "3c7fb2eb16b62751"), ("finetune", "893da6cdcdb1055b"), ("columns", "5319c4ed342bc849"),
+    ("mounds", "c53e04e83b780197"),
+])
+def test_scenes_of_the_existing_stages_stay_as_they_were_drawn(stage, digest):
+    """Scenes 0-5 of seed 3 of each earlier stage, as drawn before the `dams` stage came: a new
+    stage or family must not change what the datasets made before it hold."""
+    st = STAGES[stage]
+    families = family_sequence(st, 6)
+    assert _fingerprint([sample_for_index(st, 3, k, families[k]).scene for k in range(6)]) == digest

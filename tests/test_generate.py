@@ -75,7 +75,7 @@ def test_generate_writes_gns_splits_scenes_and_metadata(tmp_path):
     assert meta["stage"] == "finetune" and meta["seed"] == 3 and meta["count"] == 12
     assert meta["bounds"] == [[0.0, 400.0], [0.0, 152.0]]
     assert meta["default_connectivity_radius"] == pytest.approx(2.3 * 5.0)
-    assert meta["ranges"]["cohesion_kpa"] == [10.0, 60.0]
+    assert meta["ranges"]["cohesion_kpa"] == [10.0, 60.0] and "undrained_share" not in meta["ranges"]
     assert sum(meta["family_counts"].values()) == 12 and set(meta["family_counts"]) <= {"b", "c", "d", "column"}
     assert meta["code_version"].startswith("0.")
     sims = _dataset(tmp_path)
@@ -97,6 +97,17 @@ def test_base_stage_has_one_material_feature(tmp_path):
     assert read_metadata(tmp_path)["material_features"] == ["tan_phi"]
     assert all(s[2].shape[1] == 1 for s in read_simulations(tmp_path / "train.npz"))
     assert summarize(tmp_path)["splits"]["train"]["material_width"] == 1
+
+
+def test_the_dams_stage_records_its_ranges_and_undrained_share(tmp_path):
+    config = GenerateConfig(stage="dams", count=10, seed=0, batch=5, frames=7, cell_size=10.0)
+    generate(config, tmp_path, simulate=Ballistic(), progress=False)
+    meta = read_metadata(tmp_path)
+    ranges = meta["ranges"]
+    assert ranges["friction_angle_deg"] == [0.0, 45.0] and ranges["cohesion_kpa"] == [0.0, 110.0]
+    assert ranges["domain_m"] == [800.0, 100.0] and ranges["undrained_share"] == 0.25 and ranges["vertices_m"] == {}
+    assert ranges["zoned_dam"]["excluded_base_height_crest_m"] == [260.0, 60.0, 20.0]
+    assert meta["family_counts"] == {"zoned_dam": 10} and meta["material_features"] == ["tan_phi", "c_over_100kPa"]
 
 
 def test_statistics_equal_a_direct_recomputation_over_the_train_split(tmp_path):

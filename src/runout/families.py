@@ -1,14 +1,18 @@
 """Random scene families for training data (paper section "Datasets", Table A.1).
 
 Families: (a) square blocks thrown over uneven ground, (b) steep three-layer slopes,
-(c) gentle three-layer slopes, (d) zoned dams on a foundation, granular column collapses
-and layered mounds. Four stages: `base` (phi 10-40 deg, c = 0, 300 x 152 m, families a-d),
-`finetune` (phi 3-35 deg, c 10-60 kPa, 400 x 152 m, families b-d and columns), `columns`
-(columns alone over the range of the paper's column study, section 5.1.1: phi 0-45 deg,
-c 5-75 kPa, 1000 x 208 m like its cases, base 60-220 m, aspect H0 / L0 0.3-2.5 drawn
-log-uniformly; the study's own 75 cases stay out, see COLUMN_STUDY_GEOMETRIES) and `mounds`
-(mounds alone, around the paper's four-layer slope, section 5.1.2: phi 0-45 deg, c 0-75 kPa
-per layer, 1000 x 200 m like it; the slope's own geometry stays out, see FOUR_LAYER_SLOPE).
+(c) gentle three-layer slopes, (d) zoned dams on a foundation, granular column collapses,
+layered mounds and four-zone dams on the rough base. Five stages: `base` (phi 10-40 deg,
+c = 0, 300 x 152 m, families a-d), `finetune` (phi 3-35 deg, c 10-60 kPa, 400 x 152 m,
+families b-d and columns), `columns` (columns alone over the range of the paper's column
+study, section 5.1.1: phi 0-45 deg, c 5-75 kPa, 1000 x 208 m like its cases, base 60-220 m,
+aspect H0 / L0 0.3-2.5 drawn log-uniformly; the study's own 75 cases stay out, see
+COLUMN_STUDY_GEOMETRIES), `mounds` (mounds alone, around the paper's four-layer slope,
+section 5.1.2: phi 0-45 deg, c 0-75 kPa per layer, 1000 x 200 m like it; the slope's own
+geometry stays out, see FOUR_LAYER_SLOPE) and `dams` (four-zone dams alone, around the
+paper's dam of the inverse analysis, section 5.2: phi 0-45 deg, c 0-110 kPa per zone, a
+quarter of the zones undrained, 800 x 100 m like it; the dam's own geometry stays out, see
+DAM_EXAMPLE).
 
 A mound is a trapezoid on the rough base (no ground strip, as in the example) cut into 2-4
 horizontal layers. Each range holds the slope's value (in brackets) with room on both sides,
@@ -19,8 +23,23 @@ flatter faces barely move, steeper ones are the columns'), the base's centre at 
 (500), so each toe is at least 150 m from a wall (the slope's MPM run spreads about 165 m past
 its toes); layer boundaries uniform in the height, every layer at least MOUND_MIN_LAYER thick.
 
+A zoned dam is a trapezoid on the rough base (no foundation, as in examples/dam.toml) cut into
+an upstream shell (left), a core and a downstream shell split at some height into a lower and
+an upper layer. Ranges (the example's value in brackets): base width 160-400 m (260), height
+30-96 m (60; 96 is the 100 m domain less HEADROOM), crest 10-40 m (20), the upstream face's
+share of the run base - crest 0.3-0.7 (0.5), each face 15-40 deg (26.6), the base's centre at
+x 350-450 m (400), so each toe is at least 150 m from a wall (the example's outermost points
+move 47-62 m downstream in its 400 frames, at 8 and 4 m cells); the core 16-80 m wide at the base
+(40) and 25-75 % of the crest wide at the crest (50 %), its top centred on the crest, its
+centre line leaning -15 to 15 deg from the vertical (0); the downstream shell split at
+0.15-0.6 of the height (1/3).
+Every zone at least DAM_MIN_ZONE thick. Each zone has its own material; with probability
+DAM_UNDRAINED it is undrained clay (phi = 0 exactly, c = s_u from the c range), the
+total-stress case of the example's lower downstream shell, which a uniform phi almost never
+draws (and phi = 0 is where the learned engines fall shortest in the column study).
+
 Every vertex, size, velocity and property is drawn uniformly from its range
-(`vertex_ranges`). A draw whose layers would cross, overhang or be thinner than
+(`vertex_ranges`), but for the undrained zones' phi = 0. A draw whose layers would cross, overhang or be thinner than
 MIN_THICKNESS is redrawn whole (rejection sampling), so the accepted scenes are uniform
 over the valid part of the ranges and every value stays inside its range. Geometry reading
 (the paper's figure is missing) is explained in docs/datasets.md. Units: m, m/s, degrees, kPa.
@@ -54,6 +73,23 @@ MOUND_LAYERS = (2, 4)  # horizontal layers (drawn alike; thin draws redrawn, so 
 MOUND_MIN_LAYER = 8.0  # m, thinnest layer and narrowest crest (two point spacings at the stage's 8 m cells)
 FOUR_LAYER_SLOPE = (300.0, 150.0, 60.0)  # (base, height, crest) m of the paper's four-layer slope
 FOUR_LAYER_CLEARANCE = 10.0  # m: a `mounds` draw within this of FOUR_LAYER_SLOPE in all three is redrawn
+DAM_DOMAIN = (800.0, 100.0)  # m, the paper's dam of the inverse analysis (examples/dam.toml)
+DAM_BASE = (160.0, 400.0)  # m, base width (260)
+DAM_HEIGHT = (30.0, 96.0)  # m (60); 96 = the domain's 100 m less HEADROOM
+DAM_CREST = (10.0, 40.0)  # m, crest width (20)
+DAM_UPSTREAM_RUN = (0.3, 0.7)  # the upstream (left) face's share of the horizontal run base - crest (0.5)
+DAM_FACE = (15.0, 40.0)  # degrees from the horizontal, each outer face (26.6)
+DAM_CENTRE = (350.0, 450.0)  # m, x of the base's centre (400): every toe 150 m or more from a wall
+DAM_CORE_BASE = (16.0, 80.0)  # m, the core's width at the base (40)
+DAM_CORE_CREST = (0.25, 0.75)  # the core's width at the crest / crest width (0.5), centred on the crest
+DAM_CORE_LEAN = (-15.0, 15.0)  # degrees from the vertical of the core's centre line, + leaning downstream (0)
+DAM_SPLIT = (0.15, 0.6)  # height of the downstream shell's split / dam height (1/3)
+# m, thinnest zone: the example's shells are 5 m wide at the crest (4.85 m from corner to core),
+# so the 8 m of the mounds would leave its shape out; 4 m is one point spacing at 8 m cells
+DAM_MIN_ZONE = 4.0
+DAM_UNDRAINED = 0.25  # chance that a zone is undrained clay: phi = 0, c = s_u from the stage's c range
+DAM_EXAMPLE = (260.0, 60.0, 20.0)  # (base, height, crest) m of the paper's dam
+DAM_CLEARANCE = 10.0  # m: a `dams` draw within this of DAM_EXAMPLE in all three is redrawn
 HEADROOM = 4.0  # m, free space kept under the domain's top wall
 BLOCK_CLEARANCE = 2.0  # m, gap between a block and the ground or another block
 MAX_DRAWS = 10_000  # rejection-sampling attempts before giving up (never reached in practice)
@@ -63,7 +99,7 @@ GROUND_E = 50.0  # MPa, linear-elastic ground and foundation
 POISSON = 0.3
 DENSITY = 1800.0  # kg/m^3
 
-FAMILIES = ("a", "b", "c", "d", "column", "mound")
+FAMILIES = ("a", "b", "c", "d", "column", "mound", "zoned_dam")
 FAMILY_TITLES = {
     "a": "blocks over uneven ground",
     "b": "steep three-layer slope",
@@ -71,6 +107,7 @@ FAMILY_TITLES = {
     "d": "zoned dam on a foundation",
     "column": "column collapse",
     "mound": "layered mound",
+    "zoned_dam": "four-zone dam on the rough base",
 }
 
 
@@ -86,6 +123,7 @@ class Stage:
     height: float = DOMAIN_HEIGHT  # m, domain height
     column_base: Range | None = None  # m: L0 of a column; None: Table A.1's column sizes
     column_aspect: Range | None = None  # H0 / L0, drawn log-uniformly
+    undrained_share: float = 0.0  # chance that a soil region is undrained: phi = 0, c from cohesion_range
 
 
 STAGES = {
@@ -99,6 +137,10 @@ STAGES = {
     ),
     "mounds": Stage(
         "mounds", 3, MOUND_DOMAIN[0], (0.0, 45.0), (0.0, 75.0), {"mound": 1}, 2, height=MOUND_DOMAIN[1],
+    ),
+    "dams": Stage(
+        "dams", 4, DAM_DOMAIN[0], (0.0, 45.0), (0.0, 110.0), {"zoned_dam": 1}, 2, height=DAM_DOMAIN[1],
+        undrained_share=DAM_UNDRAINED,
     ),
 }
 
@@ -150,7 +192,8 @@ def sample(stage: Stage, family: str, rng: np.random.Generator, name: str = "sce
     """Draw one scene of `family` for `stage`."""
     if family not in stage.mix:
         raise ValueError(f"family {family!r} is not part of stage {stage.name!r}")
-    draw = {"a": _blocks, "b": _steep_slope, "c": _gentle_slope, "d": _dam, "column": _column, "mound": _mound}[family]
+    draw = {"a": _blocks, "b": _steep_slope, "c": _gentle_slope, "d": _dam, "column": _column, "mound": _mound,
+            "zoned_dam": _zoned_dam}[family]
     for _ in range(MAX_DRAWS):
         drawn = draw(stage, rng)
         if drawn is not None:
@@ -190,7 +233,9 @@ def _draw_vertices(rng, family: str, width: float, labels=None) -> dict[str, tup
 
 
 def _scene(stage: Stage, soil: list[Region], fixed: list[Region], rng, name: str) -> Scene:
-    """Give each soil region its own random material; fixed regions share the elastic ground."""
+    """Give each soil region its own random material; fixed regions share the elastic ground.
+    A stage with an undrained share makes a region undrained (phi = 0) with that chance; the
+    others draw no number for it, so their scenes stay as they were."""
     materials = {}
     regions = []
     if fixed:
@@ -201,7 +246,8 @@ def _scene(stage: Stage, soil: list[Region], fixed: list[Region], rng, name: str
         regions += [replace(r, material="ground", fixed=True) for r in fixed]
     for k, r in enumerate(soil, start=1):
         name_k = f"soil_{k}"
-        phi = _uniform(rng, stage.friction_range)
+        undrained = stage.undrained_share > 0 and rng.uniform() < stage.undrained_share
+        phi = 0.0 if undrained else _uniform(rng, stage.friction_range)
         c = _uniform(rng, stage.cohesion_range) if stage.cohesion_range else 0.0
         materials[name_k] = Material(
             name_k, friction_angle=phi, cohesion=c, youngs_modulus=SOIL_E, poisson_ratio=POISSON, density=DENSITY
@@ -451,15 +497,64 @@ def _near_four_layer_slope(base: float, height: float, crest: float) -> bool:
     return all(abs(value - slope) <= FOUR_LAYER_CLEARANCE for value, slope in zip((base, height, crest), FOUR_LAYER_SLOPE))
 
 
+# ----------------------------------------------------------------------------- zoned dam
+
+
+def _zoned_dam(stage: Stage, rng):
+    """A trapezoid dam on the base cut into four zones: upstream shell, core, downstream shell
+    below and above its split. Corners: toes [0] (upstream, left), [1] on the base, crest corners
+    [2] (right), [3]; the core's corners [4], [5] on the base, [6], [7] at the crest (right one
+    first); [8] on the core's right side and [9] on the downstream face at the split's height."""
+    base, height, crest = _uniform(rng, DAM_BASE), _uniform(rng, DAM_HEIGHT), _uniform(rng, DAM_CREST)
+    up_run = _uniform(rng, DAM_UPSTREAM_RUN) * (base - crest)
+    down_run = base - crest - up_run
+    x0 = _uniform(rng, DAM_CENTRE) - base / 2
+    core_base, core_crest = _uniform(rng, DAM_CORE_BASE), _uniform(rng, DAM_CORE_CREST) * crest
+    lean, split = np.radians(_uniform(rng, DAM_CORE_LEAN)), _uniform(rng, DAM_SPLIT) * height
+    faces = np.degrees(np.arctan2(height, [up_run, down_run]))
+    if _near_example_dam(base, height, crest) or faces.min() < DAM_FACE[0] or faces.max() > DAM_FACE[1]:
+        return None
+    top = x0 + up_run + crest / 2  # the core's centre at the crest
+    bottom = top - height * np.tan(lean)  # and at the base
+
+    def core_right(y):  # the core's right (downstream) side at height y
+        return bottom + core_base / 2 + (top + core_crest / 2 - bottom - core_base / 2) * y / height
+
+    corners = [(x0, 0.0), (x0 + base, 0.0), (x0 + up_run + crest, height), (x0 + up_run, height),
+               (bottom - core_base / 2, 0.0), (bottom + core_base / 2, 0.0),
+               (top + core_crest / 2, height), (top - core_crest / 2, height),
+               (core_right(split), split), (x0 + base - down_run * split / height, split)]
+    p = [(float(x), float(y)) for x, y in corners]
+    # upstream shell, core, downstream shell below and above the split: examples/dam.toml's order
+    zones = [[p[0], p[4], p[7], p[3]], [p[4], p[5], p[6], p[7]], [p[5], p[1], p[9], p[8]], [p[8], p[9], p[2], p[6]]]
+    # the core's sides run from the base between the toes to the crest between its corners
+    inside = p[0][0] < p[4][0] < p[5][0] < p[1][0] and p[3][0] < p[7][0] < p[6][0] < p[2][0]
+    if not inside or not all(_whole_zone(np.array(q)) for q in zones):
+        return None
+    return {f"[{k}]": q for k, q in enumerate(p)}, [_region(q) for q in zones], []
+
+
+def _whole_zone(quad: np.ndarray) -> bool:
+    """A zone is a simple polygon, counter-clockwise, at least DAM_MIN_ZONE thick everywhere."""
+    return polygon_area(quad) > 0 and not polygon_self_intersects(quad) and _thinnest(quad) >= DAM_MIN_ZONE
+
+
+def _near_example_dam(base: float, height: float, crest: float) -> bool:
+    """Whether a dam is the paper's (examples/dam.toml): within DAM_CLEARANCE m of it in base,
+    height and crest at once (at any offset, zoning or strength)."""
+    return all(abs(value - dam) <= DAM_CLEARANCE for value, dam in zip((base, height, crest), DAM_EXAMPLE))
+
+
 def draw_family(
     family: str, out: Path, count: int = 12, stage: str | None = None, seed: int = 0,
     scenes: Path | None = None, force: bool = False,
 ) -> None:
     """Draw `count` random scenes of a family (stage: base, finetune for columns, mounds for
-    mounds) into the picture OUT, and write each as TOML into SCENES when given (`runout families`)."""
+    mounds, dams for zoned dams) into the picture OUT, and write each as TOML into SCENES when
+    given (`runout families`)."""
     if family not in FAMILIES:
         raise InputError(f"--family {family!r} must be one of {', '.join(FAMILIES)}.")
-    stage = stage or {"column": "finetune", "mound": "mounds"}.get(family, "base")
+    stage = stage or {"column": "finetune", "mound": "mounds", "zoned_dam": "dams"}.get(family, "base")
     if stage not in STAGES:
         raise InputError(f"--stage {stage!r} must be one of {', '.join(STAGES)}.")
     if family not in STAGES[stage].mix:

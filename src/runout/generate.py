@@ -32,9 +32,10 @@ from runout.contract import MATERIAL_FEATURE_NAMES, WindowSchema, radius_for_spa
 from runout.dataset import SPLITS
 from runout.errors import InputError, RunFailed
 from runout.families import (
-    BLOCK_SIDE, BLOCK_SPEED, FOUR_LAYER_CLEARANCE, FOUR_LAYER_SLOPE, MOUND_BASE, MOUND_CENTRE, MOUND_CREST, MOUND_FACE,
-    MOUND_HEIGHT, MOUND_LAYERS, MOUND_LEFT_RUN, MOUND_MIN_LAYER, STAGES, family_sequence, sample_for_index,
-    vertex_ranges,
+    BLOCK_SIDE, BLOCK_SPEED, DAM_BASE, DAM_CENTRE, DAM_CLEARANCE, DAM_CORE_BASE, DAM_CORE_CREST, DAM_CORE_LEAN,
+    DAM_CREST, DAM_EXAMPLE, DAM_FACE, DAM_HEIGHT, DAM_MIN_ZONE, DAM_SPLIT, DAM_UPSTREAM_RUN, FOUR_LAYER_CLEARANCE,
+    FOUR_LAYER_SLOPE, MOUND_BASE, MOUND_CENTRE, MOUND_CREST, MOUND_FACE, MOUND_HEIGHT, MOUND_LAYERS, MOUND_LEFT_RUN,
+    MOUND_MIN_LAYER, STAGES, family_sequence, sample_for_index, vertex_ranges,
 )
 from runout.scene import MAX_FRAMES, Scene, TimeSpec, save_scene
 from runout.npz import SafeNpz, numeric
@@ -363,10 +364,12 @@ def _ranges(stage) -> dict:
         "block_side_m": list(BLOCK_SIDE),
         "block_velocity_m_per_s": list(BLOCK_SPEED),
         "vertices_m": {f: vertex_ranges(f, stage.width) for f in stage.mix
-                       if f != "mound" and not (f == "column" and stage.column_base is not None)},
+                       if f not in ("mound", "zoned_dam") and not (f == "column" and stage.column_base is not None)},
         **({"column_base_m": list(stage.column_base), "column_aspect": list(stage.column_aspect)}
            if stage.column_base is not None else {}),
         **({"mound": _mound_ranges()} if "mound" in stage.mix else {}),
+        **({"zoned_dam": _dam_ranges()} if "zoned_dam" in stage.mix else {}),
+        **({"undrained_share": stage.undrained_share} if stage.undrained_share else {}),
     }
 
 
@@ -376,4 +379,14 @@ def _mound_ranges() -> dict:
         "left_run_share": list(MOUND_LEFT_RUN), "face_deg": list(MOUND_FACE), "centre_x_m": list(MOUND_CENTRE),
         "layers": list(MOUND_LAYERS), "min_layer_m": MOUND_MIN_LAYER,
         "excluded_base_height_crest_m": list(FOUR_LAYER_SLOPE), "excluded_within_m": FOUR_LAYER_CLEARANCE,
+    }
+
+
+def _dam_ranges() -> dict:
+    return {
+        "base_m": list(DAM_BASE), "height_m": list(DAM_HEIGHT), "crest_m": list(DAM_CREST),
+        "upstream_run_share": list(DAM_UPSTREAM_RUN), "face_deg": list(DAM_FACE), "centre_x_m": list(DAM_CENTRE),
+        "core_base_m": list(DAM_CORE_BASE), "core_crest_share": list(DAM_CORE_CREST),
+        "core_lean_deg": list(DAM_CORE_LEAN), "split_share": list(DAM_SPLIT), "min_zone_m": DAM_MIN_ZONE,
+        "excluded_base_height_crest_m": list(DAM_EXAMPLE), "excluded_within_m": DAM_CLEARANCE,
     }
