@@ -134,15 +134,21 @@ def profiles(forward: Forward, intervals: Intervals, lin: Linearisation, step: f
     rows = np.concatenate([np.repeat(lin.values[None], PROFILE_POINTS, axis=0) for _ in grids])
     for k, grid in enumerate(grids):
         rows[k * PROFILE_POINTS:(k + 1) * PROFILE_POINTS, k] = grid
-    positions = forward.predict(rows, progress)
-    device = forward.data_loss.target.device
-    losses = np.array([float(forward.data_loss(torch.as_tensor(x, device=device))) for x in positions])
+    losses = data_losses(forward, rows, progress)
     out = []
     for k, grid in enumerate(grids):
         values = np.append(grid, lin.values[k])
         order = np.argsort(values, kind="stable")
         out.append(Profile(values[order], np.append(losses[k * PROFILE_POINTS:(k + 1) * PROFILE_POINTS], lin.loss)[order]))
     return out
+
+
+def data_losses(forward: Forward, values: np.ndarray, progress: bool = False) -> np.ndarray:
+    """[K] data loss (m²) at each row of values [K, P] (degrees, kPa): the engine's forward runs
+    and the inverse's own loss, no gradient."""
+    device = forward.data_loss.target.device
+    return np.array([float(forward.data_loss(torch.as_tensor(x, device=device)))
+                     for x in forward.predict(np.asarray(values, dtype=np.float64), progress)])
 
 
 def estimate_uncertainty(forward: Forward, free: tuple[FreeParameter, ...], values: np.ndarray, confidence: float,
