@@ -22,7 +22,9 @@ from runout.gns.engine import GnsEngine
 from runout.gns.rollout import rollout
 from runout.gns.schema import FeatureSchema, NetworkConfig
 from runout.gns.simulator import GraphNetworkSimulator, Normalisation
-from runout.inverse import Evaluation, invert, load_inverse_spec, load_observation, minimise, starting_points
+from runout.inverse import (
+    Evaluation, invert, load_inverse_spec, load_observation, minimise, starting_points, summary_lines,
+)
 from runout.inverse.forward import inverse_problem
 from runout.inverse.history import HISTORY_JSON, RunInfo
 from runout.inverse.memory import PeakMemory
@@ -427,7 +429,38 @@ def test_public_invert_runs_several_starts(toy, tmp_path):
     result = invert(write_spec(toy, params, name="starts.toml"), tmp_path, model=toy / "model.pt", starts=2)
     assert len(result.starts) == 2 and (tmp_path / "starts.json").is_file() and (tmp_path / "starts.png").is_file()
     assert result.best.values[0] == pytest.approx(40.0, rel=0.01)
-    assert json.loads((tmp_path / "starts.json").read_text())["true"] == [40.0]  # the target's own value, drawn in starts.png
+    starts = json.loads((tmp_path / "starts.json").read_text())
+    assert starts["true"] == [40.0]  # the target's own value, drawn in starts.png
+    assert starts["data_loss_at_true_m2"] == result.loss_at_truth < 1e-10  # m²: the target is this model's run at 40
+
+
+TRUTH_PARAMS = ("[parameters.right]\nc = { initial = 70.0, lower = 10.0, upper = 80.0 }\n"
+                "[optimiser]\nmax_iterations = 1\n[rollout]\nsteps = 8")
+
+
+def test_invert_gives_the_data_loss_at_the_true_values_through_its_own_engine(toy, tmp_path):
+    """The target names its materials, so one more forward run gives the loss at the true values, an
+    evaluation's loss there: on another model's target (a stand-in for a wrong engine) measured
+    4.2e-3 m², on the model's own target 0 (its answer after one iteration: 6.0e-5 m²)."""
+    write_target(tmp_path, tiny_gns(seed=1))
+    at_truth = {}
+    for folder in (tmp_path, toy):
+        spec_path = write_spec(folder, TRUTH_PARAMS, name="truth.toml")
+        result = invert(spec_path, tmp_path / f"run_{folder.name}", model=toy / "model.pt")
+        _, _, problem = problem_for(spec_path)
+        assert result.loss_at_truth == pytest.approx(problem.evaluate(np.array([40.0])).loss, rel=1e-6, abs=1e-14)
+        assert (f"at the true values (c[right] = 40 kPa): loss {result.loss_at_truth:.4g} m^2 "
+                f"(at the answer: {result.best.loss:.4g} m^2)") in summary_lines(result)
+        at_truth[folder] = result.loss_at_truth
+    assert at_truth[tmp_path] > 1e-3 and at_truth[toy] < 1e-10 < result.best.loss  # m²
+
+
+def test_a_target_that_names_no_true_values_gives_no_loss_at_them(toy, tmp_path):
+    (tmp_path / "toy.toml").write_text((toy / "toy.toml").read_text())
+    np.save(tmp_path / "observed.npy", np.load(toy / "target" / "trajectory.npz", allow_pickle=True)["simulation_0"][0][8])
+    (tmp_path / "spec.toml").write_text(f'scene = "toy.toml"\n[target]\npositions = "observed.npy"\n{TRUTH_PARAMS}\n')
+    result = invert(tmp_path / "spec.toml", tmp_path / "run", model=toy / "model.pt")
+    assert result.loss_at_truth is None and not any("true values" in line for line in summary_lines(result))
 
 
 # ----------------------------------------------------------------------------- MPM finite differences

@@ -27,7 +27,8 @@ def invert(
     """Fit the spec's free material parameters (phi in degrees, c in kPa) to the target runout
     with L-BFGS-B inside their bounds; writes history.csv, history.json, loss.png,
     parameters.png and deposit.png, and prints the answer with its bounds (with --uncertainty,
-    also its intervals: `c[m1] = 40.1 ± 1.3 kPa (90 %)`). A learned engine fills the scene at
+    also its intervals: `c[m1] = 40.1 ± 1.3 kPa (90 %)`), and the loss at the true values when
+    the target names them. A learned engine fills the scene at
     the model's point spacing (the target must be a run at that spacing)."""
     from runout import checks
     from runout.errors import Interrupted, RolloutDiverged, RunFailed

@@ -19,7 +19,7 @@ from runout.inverse.mpm_fd import check_step
 from runout.inverse.observation import Observation, load_observation
 from runout.inverse.optimise import Log, StartResult, run_starts, spread
 from runout.inverse.spec import InverseSpec, load_inverse_spec
-from runout.inverse.uncertainty import PROFILE_PNG, PROFILE_POINTS, UNCERTAINTY_JSON, estimate_uncertainty
+from runout.inverse.uncertainty import PROFILE_PNG, PROFILE_POINTS, UNCERTAINTY_JSON, data_losses, estimate_uncertainty
 from runout.outputs import check_folder, claim
 
 LEARNED = ("gns", "neural-mpm")  # engines read from --model (runout.learned)
@@ -33,6 +33,7 @@ class InversionResult:
     starts: list[StartResult]
     spread: list[dict]  # per parameter, over the starts (see optimise.spread)
     intervals: Intervals | None = None  # at the best start's answer, with uncertainty=True
+    loss_at_truth: float | None = None  # m², the data loss at the target's true values; None: not known
 
     @property
     def best(self) -> StartResult:
@@ -67,7 +68,9 @@ def invert(
     outside the model's training range); `progress` shows a bar over each forward run.
     uncertainty: then intervals at `confidence` on the best start's answer (runout.inverse.intervals),
     written with the loss along each parameter to uncertainty.json and profile.png in out_dir;
-    a finished run is replayed from its history, not redone."""
+    a finished run is replayed from its history, not redone.
+    When the target names the true values, one more forward run gives the data loss there
+    (`loss_at_truth`): above the answer's, the engine's response is off; about equal, the loss is flat."""
     if engine is not None and engine not in ENGINES:
         raise InputError(f"--engine {engine!r} must be one of {', '.join(ENGINES)}.")
     if not 1 <= starts <= MAX_STARTS:
@@ -96,6 +99,8 @@ def invert(
     for result in results:
         _draw(result, observation, chosen, warn)
     inversion = InversionResult(spec, results, spread(results, spec.free))
+    if observation.true_values is not None:
+        inversion.loss_at_truth = float(data_losses(forward, [observation.true_values], progress)[0])
     if starts > 1:
         _write_starts(inversion, Path(out_dir))
     if uncertainty:
@@ -188,7 +193,7 @@ def _write_starts(inversion: InversionResult, out_dir: Path) -> None:
         for k, r in enumerate(inversion.starts)
     ]
     summary = {"parameters": [p.name for p in free], "true": inversion.best.history.true_values,  # None: unknown
-               "starts": rows, "spread": inversion.spread}
+               "data_loss_at_true_m2": inversion.loss_at_truth, "starts": rows, "spread": inversion.spread}
     (out_dir / "starts.json").write_text(json.dumps(summary, indent=1))
     header = ["start", "loss (m^2)", "iterations"] + [f"initial {p.name} ({p.unit})" for p in free]
     header += [f"{p.name} ({p.unit})" for p in free]
@@ -207,6 +212,9 @@ def summary_lines(inversion: InversionResult) -> list[str]:
     lines = [f"final loss {best.loss:.4g} m^2 after {best.iterations} iterations ({best.message})"]
     for p, v in zip(inversion.spec.free, best.values):
         lines.append(f"  {p.name:<32} = {v:10.4g} {p.unit:<8} bounds [{p.lower:g}, {p.upper:g}]")
+    if inversion.loss_at_truth is not None:
+        truth = ", ".join(f"{p.name} = {v:g} {p.unit}" for p, v in zip(inversion.spec.free, best.history.true_values))
+        lines.append(f"at the true values ({truth}): loss {inversion.loss_at_truth:.4g} m^2 (at the answer: {best.loss:.4g} m^2)")
     if len(inversion.starts) > 1:
         lines.append(f"spread over {len(inversion.starts)} starts (min .. max, std, range / bound width):")
         for row in inversion.spread:
