@@ -12,7 +12,9 @@ The same spec is then solved through the MPM itself (`--engine mpm-ad`, reverse-
 the solver) as the yardstick: the same target, start, bounds and optimiser, so the two engines'
 answers and their seconds per L-BFGS-B iteration stand side by side (paper §5.2 compares the
 GNS's inverse with the MPM's in accuracy and cost; here the learned engine is whichever the
-model file holds).
+model file holds). Each engine's data loss at the true values (one more forward run, the
+inverse's own loss) tells where a wrong answer comes from: above its answer's loss, the engine's
+response is off (the model); about equal, a flat loss surface; below, the optimiser.
 
 Writes OUT/inverse/: scene.toml and spec.toml (the problem solved), target.png (initial
 geometry, MPM deposit, its displacement), run/ (history.json, history.csv, loss.png,
@@ -32,6 +34,7 @@ from runout.evaluate.context import StudyContext
 from runout.evaluate.model_card import model_card
 from runout.evaluate.scenes import EXAMPLES, example_scene, model_scene, scaled
 from runout.inverse import invert
+from runout.learned.engine import engine_label
 from runout.learned.load import load_engine
 from runout.plots import draw_displacement, draw_materials
 from runout.scene import save_scene
@@ -59,6 +62,7 @@ def run_inverse(model: Path, out: Path, run: StudyContext, examples: Path = EXAM
     spec = spec_text(_example_spec(examples), target.resolve(), max_iterations)
     (folder / "spec.toml").write_text(spec)
     result = invert(folder / "spec.toml", folder / "run", model=model, device=run.device, log=log)
+    log_loss_at_truth(result, engine_label(engine), log)
     draw_target(load_trajectory(target), folder / "target.png")
     summary = summarise(result, model)
     summary.update(scale=scale, frames=scene.time.frames, engine=engine.name)
@@ -66,6 +70,7 @@ def run_inverse(model: Path, out: Path, run: StudyContext, examples: Path = EXAM
         if log:
             log(f"the yardstick: the same inverse through the MPM ({YARDSTICK})")
         measured = invert(folder / "spec.toml", folder / YARDSTICK_RUN, device=run.device, engine=YARDSTICK, log=log)
+        log_loss_at_truth(measured, "MPM-AD", log)
         summary["yardstick"] = engine_summary(measured) | {"engine": YARDSTICK}
     (folder / "summary.json").write_text(json.dumps(summary, indent=1))
     return summary
@@ -116,6 +121,7 @@ def engine_summary(result) -> dict:
             for k, p in enumerate(result.spec.free)
         ],
         "final_data_loss_m2": best.loss,
+        "data_loss_at_true_m2": result.loss_at_truth,  # None: the target names no true values
         "iterations": best.iterations,
         "evaluations": best.evaluations,
         "message": best.message,
@@ -128,6 +134,13 @@ def engine_summary(result) -> dict:
         ],
         "run_folder": str(best.out_dir),
     }
+
+
+def log_loss_at_truth(result, label: str, log) -> None:
+    """One line: the engine's data loss at the true values beside its answer's, when they are known."""
+    if log and result.loss_at_truth is not None:
+        log(f"{label} at the true values: data loss {result.loss_at_truth:.4g} m² "
+            f"(its answer: {result.best.loss:.4g} m²)")
 
 
 def draw_target(target: Trajectory, path: Path) -> None:
