@@ -354,6 +354,45 @@ def test_report_sets_the_papers_figures_beside_ours_at_the_papers_geometry(keys,
     assert lines[-1].endswith(f"{label} 2 s (cuda on g).")
 
 
+def inverse_summary(at_truth: float | None, yardstick_at_truth: float | None) -> dict:
+    """An inverse summary with the learned engine's answer at 30 m² and the MPM-AD's at 1e-4 m²;
+    None leaves an engine's loss at the true values out, as summaries written before it do."""
+    parameter = {"name": "c[m1_downstream_lower]", "unit": "kPa", "lower": 10.0, "upper": 100.0, "initial": 80.0,
+                 "true": 40.0, "inferred": 10.0}
+    engine = {"parameters": [parameter], "final_data_loss_m2": 30.0, "iterations": 3, "evaluations": 5, "message": "done",
+              "seconds": 6.0, "seconds_per_iteration": 2.0, "history": []}
+    yardstick = engine | {"final_data_loss_m2": 1e-4, "engine": "mpm-ad"}
+    if at_truth is not None:
+        engine["data_loss_at_true_m2"] = at_truth
+    if yardstick_at_truth is not None:
+        yardstick["data_loss_at_true_m2"] = yardstick_at_truth
+    return engine | {"scale": 1.0, "frames": 400, "yardstick": yardstick}
+
+
+@pytest.mark.parametrize("at_truth, meaning", [
+    (150.0, "the GNS's response at the true strengths is further from the target than at its answer: "
+            "the error is the model's, not the optimiser's."),
+    (31.0, "the GNS's loss is about the same at the true strengths as at its answer: where the answer misses them, "
+           "the loss surface is flat between the two."),
+    (2.0, "the GNS's loss is lower at the true strengths than at its answer: the optimiser stopped short of them."),
+])
+def test_report_says_what_the_loss_at_the_true_values_means(at_truth, meaning):
+    from runout.evaluate.report import SECTIONS
+
+    lines = SECTIONS["inverse"](inverse_summary(at_truth, 2e-11), "GNS")
+    table_end = lines.index("| c[m1_downstream_lower] | kPa | [10, 100] | 80 | 40 | 10 | 46.17 | 10 |")
+    assert lines[table_end + 2] == (f"Data loss at the true values: GNS {at_truth:g} m² (30 m² at its answer), "
+                                    f"MPM-AD 2e-11 m² (0.0001 m² at its answer); {meaning}")
+
+
+def test_report_of_an_inverse_summary_without_the_loss_at_the_true_values_says_nothing_of_it():
+    from runout.evaluate.report import SECTIONS
+
+    lines = SECTIONS["inverse"](inverse_summary(None, None), "GNS")
+    assert "| c[m1_downstream_lower] | kPa | [10, 100] | 80 | 40 | 10 | 46.17 | 10 |" in lines
+    assert not any("true values" in line for line in lines)
+
+
 def test_report_reads_the_summaries_of_the_code_before_its_keys_named_no_engine(tmp_path):
     """docs/results.md was written from such summaries (runs/final*): they must still be reported."""
     card = {"path": "models/slope.pt", "sha256": "7092af7fec97", "steps": 157561, "base_steps": 20000,
@@ -425,6 +464,7 @@ def test_report_names_the_model_and_links_existing_figures(studies, tmp_path):
     assert "Not run (`runout evaluate sensitivity`)." in text
     assert "| 0.96 |" not in text and "| 3.55 |" not in text  # shrunk scenes are not the paper's: no paper figure beside them
     assert "| inferred (GNS) | paper (GNS) | inferred (MPM-AD) |" in text and "s per L-BFGS-B iteration" in text
+    assert "Data loss at the true values: GNS " in text and " m² at its answer), MPM-AD " in text
     links = [part.split(")")[0] for part in text.split("](")[1:]]
     assert links and all((doc.parent / link).is_file() for link in links)
 

@@ -34,6 +34,7 @@ PAPER_INVERSE = {"c[m1_downstream_lower]": 46.17, "phi[m3_downstream_upper]": 40
 PAPER_SENSITIVITY = ("The paper (§6) fine-tuned subsets of N = 10-1,000 for 4.5 million steps and for 10 epochs and "
                      "rolled them out on 20 unseen simulations: the error rises below about 50-100 simulations "
                      "and stays level from about 250 on, in both budgets.")
+SAME_LOSS = 0.1  # losses at the truth and at the answer within 10 % of the answer's read as about the same
 PAPER_INVERSE_SECONDS = 62.0  # per L-BFGS-B iteration on an NVIDIA Quadro RTX 5000 (20 s forward, 42 s gradient)
 
 
@@ -164,6 +165,7 @@ def _inverse(s: dict, label: str) -> list[str]:
         header.append("inferred (MPM-AD)")
         rows = [row + [y["inferred"]] for row, y in zip(rows, yardstick["parameters"])]
     lines += _table(header, rows)
+    lines += _loss_at_truth(s, label)
     if "seconds_per_iteration" in s:
         lines += ["", f"Cost on this machine: {label} {s['seconds_per_iteration']:.3g} s per L-BFGS-B iteration "
                   f"({s['seconds']:.4g} s for {s['evaluations']} evaluations)"
@@ -178,6 +180,26 @@ def _inverse(s: dict, label: str) -> list[str]:
                     [[h["iteration"], h["data_loss_m2"], h["model_loss"], ", ".join(f"{v:.4g}" for v in h["values"])]
                      for h in s["history"]])
     return lines
+
+
+def _loss_at_truth(s: dict, label: str) -> list[str]:
+    """One sentence: each engine's data loss at the true values beside its answer's, and what the
+    learned engine's pair says; nothing for summaries without it (older ones, no true values)."""
+    if s.get("data_loss_at_true_m2") is None:
+        return []
+    engines = [(label, s)] + ([("MPM-AD", s["yardstick"])] if s.get("yardstick") is not None else [])
+    known = [f"{name} {e['data_loss_at_true_m2']:.4g} m² ({e['final_data_loss_m2']:.4g} m² at its answer)"
+             for name, e in engines if e.get("data_loss_at_true_m2") is not None]
+    at_truth, at_answer = s["data_loss_at_true_m2"], s["final_data_loss_m2"]
+    if at_truth > (1 + SAME_LOSS) * at_answer:
+        meaning = (f"the {label}'s response at the true strengths is further from the target than at its answer: "
+                   "the error is the model's, not the optimiser's")
+    elif at_truth < (1 - SAME_LOSS) * at_answer:
+        meaning = f"the {label}'s loss is lower at the true strengths than at its answer: the optimiser stopped short of them"
+    else:
+        meaning = (f"the {label}'s loss is about the same at the true strengths as at its answer: where the answer "
+                   "misses them, the loss surface is flat between the two")
+    return ["", f"Data loss at the true values: {', '.join(known)}; {meaning}."]
 
 
 def _sensitivity(s: dict, label: str) -> list[str]:
