@@ -68,7 +68,10 @@ def draw_materials(ax, traj: Trajectory, frame: int, title: str | None = None, l
                        linewidths=0, label=_material_label(m))
     _frame_axes(ax, traj.bounds, title)
     if legend and soil.any():
-        ax.legend(loc="upper right", fontsize=7, markerscale=max(1.0, 6 / np.sqrt(size)), framealpha=0.8)
+        (x0, x1), (y0, y1) = traj.bounds
+        # a flat domain (a dam, a runout plain) has no free corner: the legend goes beside it
+        place = {"loc": "upper left", "bbox_to_anchor": (1.01, 1.0)} if (y1 - y0) < 0.3 * (x1 - x0) else {"loc": "best"}
+        ax.legend(**place, fontsize=7, markerscale=max(1.0, 6 / np.sqrt(size)), framealpha=0.8)
 
 
 def draw_displacement(ax, traj: Trajectory, frame: int, title: str | None = None, vmax: float | None = None):
