@@ -452,6 +452,8 @@ def test_invert_gives_the_data_loss_at_the_true_values_through_its_own_engine(to
         assert (f"at the true values (c[right] = 40 kPa): loss {result.loss_at_truth:.4g} m^2 "
                 f"(at the answer: {result.best.loss:.4g} m^2)") in summary_lines(result)
         at_truth[folder] = result.loss_at_truth
+        written = json.loads((tmp_path / f"run_{folder.name}" / HISTORY_JSON).read_text())["result"]
+        assert written["data_loss_at_true_m2"] == result.loss_at_truth and written["values"] == list(result.best.values)
     assert at_truth[tmp_path] > 1e-3 and at_truth[toy] < 1e-10 < result.best.loss  # m²
 
 
@@ -461,6 +463,7 @@ def test_a_target_that_names_no_true_values_gives_no_loss_at_them(toy, tmp_path)
     (tmp_path / "spec.toml").write_text(f'scene = "toy.toml"\n[target]\npositions = "observed.npy"\n{TRUTH_PARAMS}\n')
     result = invert(tmp_path / "spec.toml", tmp_path / "run", model=toy / "model.pt")
     assert result.loss_at_truth is None and not any("true values" in line for line in summary_lines(result))
+    assert "data_loss_at_true_m2" not in json.loads((tmp_path / "run" / HISTORY_JSON).read_text())["result"]
 
 
 # ----------------------------------------------------------------------------- MPM finite differences

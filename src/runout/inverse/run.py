@@ -101,6 +101,8 @@ def invert(
     inversion = InversionResult(spec, results, spread(results, spec.free))
     if observation.true_values is not None:
         inversion.loss_at_truth = float(data_losses(forward, [observation.true_values], progress)[0])
+        for result in results:  # each start's history.json keeps it beside its answer
+            result.history.finish({**(result.history.result or {}), "data_loss_at_true_m2": inversion.loss_at_truth})
     if starts > 1:
         _write_starts(inversion, Path(out_dir))
     if uncertainty:
