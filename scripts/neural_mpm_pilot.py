@@ -7,7 +7,7 @@ under a CPU-time budget, then judge it from rest on held-out scenes.
 
 The pilots' options, each passed on to `runout train --engine neural-mpm` (the same run;
 --mirror-share is its --mirror, --valid-count its --valid-trajectories), with the pilots'
-defaults. Engine settings (cell size, m, history, widths) apply to a new run only; a resumed
+defaults. Engine settings (cell size, m, history, widths, velocity sweeps) apply to a new run only; a resumed
 run keeps its checkpoint's, and its learning-rate schedule unless --lr-decay-steps is given.
 """
 
@@ -32,10 +32,11 @@ def main() -> None:
     p.add_argument("--history", type=int, default=NeuralMPMConfig.history)
     p.add_argument("--frames-per-call", type=int, default=NeuralMPMConfig.frames_per_call)
     p.add_argument("--widths", type=str, default=",".join(map(str, NeuralMPMConfig.widths)))
+    p.add_argument("--velocity-sweeps", type=int, default=NeuralMPMConfig.velocity_sweeps)
     p.add_argument("--resume", action="store_true")
     a = p.parse_args()
     args = ["train", "--engine", "neural-mpm"] + (["--resume"] if a.resume else [])
-    for name in [f.name for f in fields(NeuralMPMSettings)] + ["cell_size", "history", "frames_per_call", "widths"]:
+    for name in [f.name for f in fields(NeuralMPMSettings)] + ["cell_size", "history", "frames_per_call", "widths", "velocity_sweeps"]:
         value = getattr(a, name)
         option = NEURAL_MPM_OPTIONS.get(name, "--" + name.replace("_", "-"))
         if isinstance(value, bool):

@@ -196,7 +196,7 @@ ENGINE_OPTIONS = {
             "exact_rest", "onset_schedule", "overburden", "latent", "hidden", "message_passing", "keep_every", "bf16",
             "checkpoint_layers"),
     "neural-mpm": ("calls", "lr_final", "rest_share", "data_shares", "max_cpu_hours", "threads", "cell_size", "history",
-                   "frames_per_call", "widths"),
+                   "frames_per_call", "widths", "velocity_sweeps"),
 }
 ENGINES = tuple(ENGINE_OPTIONS)
 
@@ -221,7 +221,7 @@ def check_neural_mpm(settings: NeuralMPMSettings, config: NeuralMPMConfig) -> No
         if value is not None:
             option = NEURAL_MPM_OPTIONS.get(name, "--" + name.replace("_", "-"))
             checks.number(value, option, None, lo, hi, lo_open=lo_open, whole=whole)
-    for name in ("cell_size", "history", "frames_per_call"):
+    for name in ("cell_size", "history", "frames_per_call", "velocity_sweeps"):
         lo, hi = CONFIG_LIMITS[name]
         checks.number(getattr(config, name), "--" + name.replace("_", "-"), None, lo, hi, whole=name in WHOLE)
     if not widths_allowed(config.widths):

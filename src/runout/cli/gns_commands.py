@@ -53,6 +53,7 @@ def train(
     cell_size: float = typer.Option(NeuralMPMConfig.cell_size, "--cell-size", help="neural-mpm: m between the grid's nodes (new runs only; --resume keeps the checkpoint's engine)."),
     history: int = typer.Option(NeuralMPMConfig.history, "--history", help="neural-mpm: past frame velocities per input (new runs only)."),
     frames_per_call: int = typer.Option(NeuralMPMConfig.frames_per_call, "--frames-per-call", help="neural-mpm: m, the frames predicted per U-Net call (new runs only)."),
+    velocity_sweeps: int = typer.Option(NeuralMPMConfig.velocity_sweeps, "--velocity-sweeps", help="neural-mpm: sweeps that sharpen the input velocities towards the grid field that carries the points as they moved (0: the mass-weighted mean per node; new runs only)."),
     widths: str = typer.Option(",".join(map(str, NeuralMPMConfig.widths)), "--widths", help="neural-mpm: the U-Net's channels per level, joined by commas (new runs only)."),
     radius: float = typer.Option(TrainConfig.radius, "--radius", help="Connectivity radius in m (default: the dataset's, 2.3 point spacings); new runs only."),
     frame_stride: int = typer.Option(TrainConfig.frame_stride, "--frame-stride", help="Dataset frames per GNS step, 1-16 (default 1; --resume keeps the checkpoint's, --init keeps it unless this asks for another)."),
@@ -196,7 +197,8 @@ def _train_neural_mpm(ctx: typer.Context, data: Path, out: Path, resume: bool, f
     no_limit = {name: None for name in ("max_hours", "max_cpu_hours") if getattr(settings, name) == 0}  # 0: no limit
     settings = replace(settings, data=str(data), out=str(out), **no_limit)
     config = NeuralMPMConfig(cell_size=ctx.params["cell_size"], history=ctx.params["history"],
-                             frames_per_call=ctx.params["frames_per_call"], widths=parse_widths(ctx.params["widths"]))
+                             frames_per_call=ctx.params["frames_per_call"], widths=parse_widths(ctx.params["widths"]),
+                             velocity_sweeps=ctx.params["velocity_sweeps"])
     check_neural_mpm(settings, config)
     folders = [Path(d.strip()) for d in str(data).split(",") if d.strip()]
     for folder in folders:

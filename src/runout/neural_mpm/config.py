@@ -12,8 +12,9 @@ from runout.defaults import FRAME_DT
 CONFIG_LIMITS = {
     "cell_size": (1e-3, 1e4), "point_spacing": (1e-3, 1e4), "frame_dt": (1e-6, 10.0), "history": (1, 16),
     "frames_per_call": (1, 64), "material_width": (1, 2), "velocity_scale": (1e-9, 1e3), "pad": (1, 8),
+    "velocity_sweeps": (0, 64),
 }
-WHOLE = ("history", "frames_per_call", "material_width", "pad")
+WHOLE = ("history", "frames_per_call", "material_width", "pad", "velocity_sweeps")
 MAX_WIDTH = 1024  # U-Net channels at one level
 MAX_LEVELS = 6  # U-Net levels
 
@@ -31,6 +32,7 @@ class NeuralMPMConfig:
     material_width: int = 2  # [tan phi, c / 100 kPa]
     velocity_scale: float = 0.0  # m per frame: the unit of the velocity channels (0: from the training data)
     pad: int = 2  # grid nodes outside each wall
+    velocity_sweeps: int = 0  # sharpening sweeps of the input velocities (0: the mass-weighted mean per node)
 
     @property
     def in_channels(self) -> int:

@@ -7,7 +7,8 @@ One call, from the points' positions and their velocities over the last `history
 1. particles to grid with the MPM's quadratic B-spline (runout.transfer) at the engine's cell
    size dx: per node the soil fill and the ground fill (the points' area spacing^2 / dx^2
    spread over the stencil, ~1 inside a full cell), the soil's mass-weighted mean velocity of
-   each of the last `history` frames (m per frame / velocity_scale), its mass-weighted
+   each of the last `history` frames (m per frame / velocity_scale; with velocity_sweeps,
+   sharpened towards the field that carries the points as they moved: `sharpened`), its mass-weighted
    material features [tan phi, c / 100 kPa], and two static masks: nodes on or outside the
    domain's walls, and nodes inside the domain;
 2. the U-Net maps these channels to 2 m channels: the grid velocity (m per frame /
@@ -193,7 +194,11 @@ class NeuralMPM(nn.Module):
         g = transfer.to_grid(torch.cat([soil, ground, soil * vel, soil * pts.material], 1))
         fill = g[:, :1]
         fade = 1.0 / torch.clamp(fill, min=FILL_FLOOR)
-        inputs = torch.cat([fill, g[:, 1:2], g[:, 2:] * fade, static], 1)
+        means = g[:, 2:] * fade
+        if cfg.velocity_sweeps:
+            means = torch.cat([sharpened(transfer, vel, soil, means[:, :vel.shape[1]], fade, cfg.velocity_sweeps),
+                               means[:, vel.shape[1]:]], 1)
+        inputs = torch.cat([fill, g[:, 1:2], means, static], 1)
         grid_velocity = self.net(inputs) * cfg.velocity_scale  # [B, 2 m, NX, NY] m per frame
         moving = (~pts.fixed)[:, None]
         frames = []
@@ -260,6 +265,21 @@ class NeuralMPM(nn.Module):
             x = frames[-1]
             out.append(frames)
         return (torch.cat(out), velocities) if keep_velocities else torch.cat(out)
+
+
+def sharpened(transfer: GridTransfer, values: torch.Tensor, soil: torch.Tensor, grid: torch.Tensor,
+              fade: torch.Tensor, sweeps: int) -> torch.Tensor:
+    """The grid field [B, C, NX, NY] whose interpolation at the points comes closer to their
+    values [P, C]: from their mass-weighted mean per node (grid), `sweeps` Richardson sweeps
+    preconditioned by the nodes' mass, grid += P2G(mass x (values - G2P(grid))) / mass, towards
+    the least-squares field. The mean alone smooths a front's speed away (a field that carries
+    every point as the MPM did exists at the engine's cells; the mean carries a dam's front
+    9-31 % short: experiments/neural_mpm_grid_floor.py); with it the U-Net has to sharpen, with
+    the swept field keeping a velocity is a copy. Nodes below FILL_FLOOR stay damped by `fade`
+    (1 / max(fill, FILL_FLOOR)), as the mean is."""
+    for _ in range(sweeps):
+        grid = grid + transfer.to_grid(soil * (values - transfer.to_points(grid))) * fade
+    return grid
 
 
 def _transfer(x, pts: Points, point_origin, dx, grid_shape) -> GridTransfer:
