@@ -503,3 +503,49 @@ def test_the_pilot_script_trains_the_run_runout_train_does(dataset, tmp_path, ca
     runout_train(["--data", dataset, "--steps", 3, *TINY_OPTIONS, "--mirror", 0.25, "--out", tmp_path / "cli"], capsys)
     pilot, cli = weights(tmp_path / "pilot"), weights(tmp_path / "cli")
     assert all(torch.equal(pilot[k], cli[k]) for k in pilot)
+
+
+def test_a_run_from_init_starts_from_the_files_engine_with_its_own_sweeps(dataset, tmp_path, capsys):
+    """--init: a new run takes the file's config and weights (velocity_sweeps its own), so its
+    first loss is the file's engine's on the same window; a resume continues its own checkpoint."""
+    import json
+
+    from runout.neural_mpm.checkpoint import load_engine
+
+    runout_train(["--data", dataset, *TINY_OPTIONS, "--out", tmp_path / "base", "--steps", 4], capsys)
+    common = ["--data", dataset, "--engine", "neural-mpm", "--batch-size", "2", "--valid-every", "0", "--log-every", "1",
+              "--no-progress", "--init", tmp_path / "base" / CHECKPOINT]
+    code, said = runout_train([*common, "--out", tmp_path / "swept", "--steps", 1, "--lr", 1e-12, "--velocity-sweeps", 3],
+                              capsys)
+    assert code == 0, said
+    base, swept = load_engine(tmp_path / "base" / CHECKPOINT), load_engine(tmp_path / "swept" / CHECKPOINT)
+    assert swept.config == replace(base.config, velocity_sweeps=3)
+    assert all(torch.allclose(base.state_dict()[k], v, atol=1e-9) for k, v in swept.state_dict().items())
+    rows = [json.loads(line) for line in (tmp_path / "swept" / "train.log.jsonl").read_text().splitlines()]
+    assert rows[0]["event"] == "start" and rows[0]["step"] == 0 and rows[0]["settings"]["init"].endswith(CHECKPOINT)
+    code, said = runout_train([*common, "--out", tmp_path / "swept", "--steps", 2, "--resume"], capsys)
+    assert code == 0 and torch.load(tmp_path / "swept" / CHECKPOINT, weights_only=True)["step"] == 2, said
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--widths", "8,16"], "--widths comes from the --init file's engine; leave it out"),
+    (["--frames-per-call", "4"], "--frames-per-call comes from the --init file's engine"),
+])
+def test_an_engine_option_beside_init_is_one_sentence(dataset, tmp_path, capsys, extra, words):
+    from test_cli_exits import one_sentence
+
+    runout_train(["--data", dataset, *TINY_OPTIONS, "--out", tmp_path / "base", "--steps", 1], capsys)
+    code, said = runout_train(["--data", dataset, "--engine", "neural-mpm", "--init", tmp_path / "base" / CHECKPOINT,
+                               "--out", tmp_path / "run", *extra], capsys)
+    assert code == 2 and words in said and one_sentence(said), said
+    assert not (tmp_path / "run").exists()
+
+
+def test_init_from_a_file_that_is_no_neural_mpm_is_one_sentence(dataset, tmp_path, capsys):
+    from test_cli_exits import one_sentence
+
+    torch.save({"engine": "gns", "config": {}, "model": {}}, tmp_path / "gns.pt")
+    code, said = runout_train(["--data", dataset, "--engine", "neural-mpm", "--init", tmp_path / "gns.pt",
+                               "--out", tmp_path / "run"], capsys)
+    assert code == 2 and "gns.pt" in said and one_sentence(said), said
+    assert not (tmp_path / "run").exists()

@@ -192,7 +192,7 @@ def check_settings(cfg: TrainConfig, names=tuple(SETTING_LIMITS)) -> None:
 # The `runout train` options of one engine only (by parameter name): given with the other
 # engine, they are refused. Every other option serves both (--steps, --lr, --mirror, ...).
 ENGINE_OPTIONS = {
-    "gns": ("init", "device", "radius", "frame_stride", "pushforward", "compile_network", "rest_windows",
+    "gns": ("device", "radius", "frame_stride", "pushforward", "compile_network", "rest_windows",
             "exact_rest", "onset_schedule", "overburden", "latent", "hidden", "message_passing", "keep_every", "bf16",
             "checkpoint_layers"),
     "neural-mpm": ("calls", "lr_final", "rest_share", "data_shares", "max_cpu_hours", "threads", "cell_size", "history",

@@ -38,7 +38,7 @@ def train(
     engine: str = typer.Option("gns", "--engine", help="The learned engine to train: gns or neural-mpm; the options of the other engine are refused."),
     steps: int = typer.Option(TrainConfig.steps, "--steps", help=f"Train until the step counter reaches this value (neural-mpm: default {NMPM.steps:,})."),
     resume: bool = typer.Option(TrainConfig.resume, "--resume", help="Continue from OUT/checkpoint.pt exactly where it stopped."),
-    init: Path = typer.Option(TrainConfig.init, "--init", help="Fine-tune from this checkpoint; extra material inputs (e.g. cohesion) start with zero weights."),
+    init: Path = typer.Option(TrainConfig.init, "--init", help="Fine-tune from this checkpoint; extra material inputs (e.g. cohesion) start with zero weights. neural-mpm: a new run starts from this neural-MPM file's engine and weights (only --velocity-sweeps may differ from it); a resumed run continues from its own checkpoint."),
     device: str = typer.Option(TrainConfig.device, "--device", help="auto, cpu, cuda or cuda:K (under torchrun each process takes its LOCAL_RANK GPU)."),
     batch_size: int = typer.Option(TrainConfig.batch_size, "--batch-size", help=f"Graphs per process and step (neural-mpm: windows per step, default {NMPM.batch_size})."),
     lr: float = typer.Option(TrainConfig.lr_init, option_name("lr_init"), help=f"Initial learning rate; decays as (lr - {TrainConfig.lr_final:g}) 0.1^(step / D) + {TrainConfig.lr_final:g} (neural-mpm: default {NMPM.lr:g}, decays exponentially to --lr-final over D steps, constant after)."),
@@ -193,6 +193,13 @@ def _train_neural_mpm(ctx: typer.Context, data: Path, out: Path, resume: bool, f
     from runout.train_settings import check_neural_mpm, parse_widths
 
     values = {NEURAL_MPM_SETTING.get(name, name): value for name, value in ctx.params.items() if _given(ctx, name)}
+    if values.get("init") is not None:
+        shaped = [name for name in ("cell_size", "history", "frames_per_call", "widths") if _given(ctx, name)]
+        if shaped:
+            option = "--" + shaped[0].replace("_", "-")
+            raise InputError(f"{option} comes from the --init file's engine; leave it out (only --velocity-sweeps may "
+                             "differ from it).")
+        values["init"] = str(values["init"])
     settings = NeuralMPMSettings(**{f.name: values[f.name] for f in fields(NeuralMPMSettings) if f.name in values})
     no_limit = {name: None for name in ("max_hours", "max_cpu_hours") if getattr(settings, name) == 0}  # 0: no limit
     settings = replace(settings, data=str(data), out=str(out), **no_limit)
@@ -203,9 +210,13 @@ def _train_neural_mpm(ctx: typer.Context, data: Path, out: Path, resume: bool, f
     folders = [Path(d.strip()) for d in str(data).split(",") if d.strip()]
     for folder in folders:
         folder_to_read(folder, "dataset folder")
+    if settings.init is not None:
+        from runout.neural_mpm.checkpoint import read_checkpoint
+
+        read_checkpoint(settings.init)  # one sentence now for a missing or other engine's file, before the folder is made
     run_folder = check_folder(out, "train", ("checkpoint.pt", "best.pt", "train.log.jsonl"), mode="resume", force=force,
                               inputs={"--data" if len(folders) == 1 else f"--data ({k + 1} of {len(folders)})": folder
-                                      for k, folder in enumerate(folders)})
+                                      for k, folder in enumerate(folders)} | {"--init": settings.init})
     claim(run_folder)
     from runout.training.engines import train_neural_mpm
 

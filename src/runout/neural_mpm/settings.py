@@ -38,4 +38,7 @@ class TrainSettings:
     max_cpu_hours: float | None = None
     threads: int = 1
     progress: bool = True
+    # a neural-MPM checkpoint a new run starts from: its engine (config and weights, the weight
+    # average where it kept one) with the run's own velocity_sweeps, a fresh optimiser, step 0
+    init: str | None = None
 

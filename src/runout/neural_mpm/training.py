@@ -116,6 +116,9 @@ class Run:
         state = read_checkpoint(out / CHECKPOINT) if resume and (out / CHECKPOINT).is_file() else None
         settings = with_schedule(settings, state, out / CHECKPOINT)
         config = NeuralMPMConfig.from_dict(state["config"]) if state is not None else config or NeuralMPMConfig()
+        init = read_checkpoint(settings.init) if state is None and settings.init else None
+        if init is not None:  # the file's engine; only how its input velocities are sharpened may change
+            config = replace(NeuralMPMConfig.from_dict(init["config"]), velocity_sweeps=config.velocity_sweeps)
         sampler = WindowSampler.from_splits(datasets(settings), "train", config.history, config.material_width,
                                             shares(settings))
         if config.velocity_scale <= 0:  # a new run: the unit of velocity from its data
@@ -127,6 +130,9 @@ class Run:
         engine.data_ranges = trained_ranges(settings, sampler, state, out / CHECKPOINT)
         run = cls(settings, engine, optimizer, sampler, _heldout(settings), LogFile(out / LOG), extra=_heldout_extra(settings))
         averaged = None
+        if init is not None:
+            engine.load_state_dict(init["model"])
+            engine.data_ranges = union_ranges(engine.data_ranges, init.get("data_ranges"))
         if state is not None:
             engine.load_state_dict(state["model"])
             averaged = last_step_weights(engine, state)
@@ -247,6 +253,20 @@ def trained_ranges(settings: TrainSettings, sampler: WindowSampler, state: dict 
     tqdm.write(f"{path} was trained on {stored}; its training ranges are measured again over --data {settings.data}.",
                file=sys.stderr)
     return _ranges(settings, sampler)
+
+
+def union_ranges(run: dict | None, init: dict | None) -> dict | None:
+    """What an engine started from another's weights has been trained on: its own data's ranges
+    and its --init file's (the velocity statistics stay the run's)."""
+    from runout.learned.training_range import union
+
+    if run is None or init is None:
+        return run
+    try:
+        both = union([{k: v for k, v in r.items() if k != "velocity_m_per_frame"} for r in (run, init)])
+    except (ValueError, KeyError) as exc:
+        raise InputError(f"--init: the file's training ranges do not join the run's data ({exc}).") from None
+    return {**both, "velocity_m_per_frame": run["velocity_m_per_frame"]}
 
 
 def datasets(settings: TrainSettings) -> list[str]:
