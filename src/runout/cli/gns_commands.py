@@ -210,10 +210,12 @@ def _train_neural_mpm(ctx: typer.Context, data: Path, out: Path, resume: bool, f
     folders = [Path(d.strip()) for d in str(data).split(",") if d.strip()]
     for folder in folders:
         folder_to_read(folder, "dataset folder")
-    if settings.init is not None:
-        from runout.neural_mpm.checkpoint import read_checkpoint
+    if settings.init is not None:  # one sentence now for a missing or other engine's file, before the folder is made
+        from runout.learned.load import load_engine
 
-        read_checkpoint(settings.init)  # one sentence now for a missing or other engine's file, before the folder is made
+        if (name := load_engine(settings.init).name) != "neural-mpm":
+            raise InputError(f"--init {settings.init}: holds a {name} model; a neural-MPM run starts from a neural-mpm "
+                             "checkpoint.")
     run_folder = check_folder(out, "train", ("checkpoint.pt", "best.pt", "train.log.jsonl"), mode="resume", force=force,
                               inputs={"--data" if len(folders) == 1 else f"--data ({k + 1} of {len(folders)})": folder
                                       for k, folder in enumerate(folders)} | {"--init": settings.init})
