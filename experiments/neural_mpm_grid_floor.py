@@ -37,6 +37,7 @@ import numpy as np
 import torch
 
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
+from runout.neural_mpm.engine import sharpened
 from runout.transfer import GridTransfer
 
 PAD = 2  # nodes outside every wall, as the engine's grid
@@ -76,10 +77,9 @@ def roll(truth: np.ndarray, soil: np.ndarray, bounds: np.ndarray, dx: float, ora
             mpm = transfer(pos[f, s], origin, dx, shape)
             step = pos[f + 1, s] - pos[f, s]
             g = mpm.to_grid(torch.cat([torch.ones_like(step[:, :1]), step], 1))
-            mass = torch.clamp(g[:, :1], min=1e-9)
-            grid = g[:, 1:] / mass
-            for _ in range(int(oracle[4:] or 0)):  # p2g-K: K Richardson sweeps towards the least-squares field
-                grid = grid + mpm.to_grid(step - mpm.to_points(grid)) / mass
+            fade = 1.0 / torch.clamp(g[:, :1], min=1e-9)
+            # p2g-K: the engine's own K sweeps towards the least-squares field
+            grid = sharpened(mpm, step, torch.ones_like(step[:, :1]), g[:, 1:] * fade, fade, int(oracle[4:] or 0))
             v = here.to_points(grid)
         else:
             a = interpolation_matrix(here, nodes)
