@@ -360,6 +360,49 @@ def test_two_datasets_train_together_each_batch_from_one_domain(column, tmp_path
 
 
 
+def test_the_fronts_term_is_each_scenes_farthest_points_and_pulls_only_them():
+    from runout.neural_mpm.training import front_term
+
+    gen = torch.Generator().manual_seed(0)
+    scene = torch.tensor([0, 0, 0, 1, 1, 2, 2, 2, 2])
+    x = torch.randn(5, 9, generator=gen, dtype=torch.float64, requires_grad=True)
+    x_true = torch.randn(5, 9, generator=gen, dtype=torch.float64)
+    term = front_term(x, x_true, scene, 3)
+    by_hand = 0.0
+    for b in range(3):
+        mine = scene == b
+        by_hand += ((x[:, mine].amax(1) - x_true[:, mine].amax(1)) ** 2).sum() / 15
+        by_hand += ((x[:, mine].amin(1) - x_true[:, mine].amin(1)) ** 2).sum() / 15
+    assert torch.allclose(term, by_hand)
+    term.backward()
+    fronts = torch.zeros_like(x, dtype=torch.bool)  # each frame's largest and smallest x of each scene
+    for b in range(3):
+        cols = torch.nonzero(scene == b).flatten()
+        fronts[torch.arange(5), cols[x[:, cols].argmax(1)]] = True
+        fronts[torch.arange(5), cols[x[:, cols].argmin(1)]] = True
+    assert torch.all(x.grad[~fronts] == 0) and torch.all(x.grad[fronts] != 0)
+    assert front_term(x_true, x_true, scene, 3) == 0  # the true fronts cost nothing
+
+
+def test_the_fronts_weight_adds_to_the_points_loss_and_zero_leaves_it_as_it_was(dataset):
+    from runout.neural_mpm.training import front_term, window_loss
+    from runout.neural_mpm.windows import WindowSampler
+
+    sampler = WindowSampler.from_split(dataset, "train", history=3, material_width=2)
+    torch.manual_seed(0)
+    engine = NeuralMPM(NeuralMPMConfig(frames_per_call=4, widths=(8, 16), velocity_scale=0.1))
+    window = sampler.draw(2, 8, 0.0, 0.5, torch.Generator().manual_seed(3))
+    with torch.no_grad():
+        points = window_loss(engine, window, 2)
+        assert window_loss(engine, window, 2, 0.0) == points
+        pred = engine.advance(window.x, window.velocities, window.points, 2)
+        soil = ~window.points.fixed
+        cell = engine.config.cell_size
+        fronts = front_term(pred[:, soil, 0] / cell, window.targets[:, soil, 0] / cell, window.points.scene[soil], 2)
+        assert fronts > 0
+        assert torch.allclose(window_loss(engine, window, 2, 0.5), points + 0.5 * fronts)
+
+
 def test_velocity_noise_leaves_the_scene_at_rest_and_the_targets_exact(dataset):
     from runout.neural_mpm.windows import WindowSampler
 
@@ -451,6 +494,8 @@ def test_a_run_of_runout_train_stopped_by_ctrl_c_resumes_exactly(dataset, tmp_pa
     (["--engine", "neural-mpm", "--widths", "32,x"], "--widths = 32,x must be whole numbers"),
     (["--engine", "neural-mpm", "--velocity-sweeps", "-1"], "--velocity-sweeps = -1 is outside the allowed range"),
     (["--velocity-sweeps", "4"], "--velocity-sweeps is an option of --engine neural-mpm only"),
+    (["--engine", "neural-mpm", "--front-loss", "-1"], "--front-loss = -1 is outside the allowed range"),
+    (["--front-loss", "0.1"], "--front-loss is an option of --engine neural-mpm only"),
 ])
 def test_an_option_of_the_other_engine_or_out_of_range_is_one_sentence(tmp_path, capsys, argv, words):
     from test_cli_exits import one_sentence

@@ -26,6 +26,10 @@ class TrainSettings:
     # before frame 0 (the scene at rest, where every rollout starts) stay exact. 0: none (the
     # anchor's default)
     noise: float = 0.0
+    # weight of the fronts' term of the loss: per scene and frame, the squared distance (cells^2)
+    # between the predicted and the MPM's largest soil x and between their smallest (the runout
+    # fronts the paper measures, L_f), beside the mean over all points; 0: the points alone
+    front_loss: float = 0.0
     # decay per step of the weight average validated and saved as the model (0: the last step's
     # weights, as the pilots of rounds 1-3); the last step's weights are kept for --resume
     ema: float = 0.0

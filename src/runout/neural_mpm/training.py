@@ -54,12 +54,35 @@ def learning_rate(step: int, s: TrainSettings) -> float:
     return s.lr * (s.lr_final / s.lr) ** (min(step, span) / span)
 
 
-def window_loss(engine: NeuralMPM, window, calls: int) -> torch.Tensor:
-    """Mean squared soil position error over the window's frames, in cells squared."""
+def window_loss(engine: NeuralMPM, window, calls: int, front_weight: float = 0.0) -> torch.Tensor:
+    """Mean squared soil position error over the window's frames, in cells squared; with
+    front_weight, plus that weight times the fronts' term (front_term)."""
     pred = engine.advance(window.x, window.velocities, window.points, calls)
     soil = ~window.points.fixed
-    err = (pred[:, soil] - window.targets[:, soil]) / engine.config.cell_size
-    return (err ** 2).sum(-1).mean()
+    cell = engine.config.cell_size
+    err = (pred[:, soil] - window.targets[:, soil]) / cell
+    loss = (err ** 2).sum(-1).mean()
+    if front_weight > 0:
+        scene = window.points.scene[soil]
+        loss = loss + front_weight * front_term(pred[:, soil, 0] / cell, window.targets[:, soil, 0] / cell, scene,
+                                                window.points.batch)
+    return loss
+
+
+def front_term(x: torch.Tensor, x_true: torch.Tensor, scene: torch.Tensor, batch: int) -> torch.Tensor:
+    """Mean over scenes and frames of the squared differences between the predicted and the
+    true largest x and between their smallest: x, x_true [frames, P] (in cells) of the soil
+    points, scene [P] each point's scene in a batch of `batch`. The runout fronts (L_f, the
+    farthest point) are a handful of points that the mean over all points barely weighs; this
+    term's gradient reaches the point that is the predicted front."""
+    index = scene.expand(x.shape[0], -1)
+    total = x.new_zeros(())
+    for reduce in ("amax", "amin"):
+        empty = x.new_zeros(x.shape[0], batch)
+        front = empty.scatter_reduce(1, index, x, reduce, include_self=False)
+        front_true = empty.scatter_reduce(1, index, x_true, reduce, include_self=False)
+        total = total + ((front - front_true) ** 2).mean()
+    return total
 
 
 def training_state(optimizer, step: int, cpu_seconds: float, best: float, settings: TrainSettings) -> dict:
@@ -159,7 +182,7 @@ class Run:
         span = s.calls * self.engine.config.frames_per_call
         window = self.sampler.draw(s.batch_size, span, s.rest_share, s.mirror_share, generator,
                                    s.noise * self.engine.config.velocity_scale)
-        loss = window_loss(self.engine, window, s.calls)
+        loss = window_loss(self.engine, window, s.calls, s.front_loss)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
