@@ -594,3 +594,48 @@ def test_init_from_a_file_that_is_no_neural_mpm_is_one_sentence(dataset, tmp_pat
                                "--out", tmp_path / "run"], capsys)
     assert code == 2 and "gns.pt" in said and one_sentence(said), said
     assert not (tmp_path / "run").exists()
+
+
+def test_bf16_runs_only_the_unet_in_bfloat16_and_keeps_the_points_float32(column):
+    """Inside engine.bfloat16() the U-Net's velocities are bfloat16-rounded (within ~1 % of
+    float32's), the positions stay float32, and outside it the engine is float32 again."""
+    torch.manual_seed(0)
+    engine = NeuralMPM(TINY)
+    torch.nn.init.normal_(engine.net.out.weight, std=0.2)  # an engine that moves
+    seen = []
+    engine.net.register_forward_hook(lambda module, args, out: seen.append(out.dtype))
+    start = rollout_like(engine, column).positions
+    with engine.bfloat16():
+        assert engine.bf16
+        halved = rollout_like(engine, column).positions
+    assert not engine.bf16 and seen[0] == torch.float32 and seen[-1] == torch.bfloat16
+    assert halved.dtype == start.dtype == np.float32
+    moved = np.abs(start[8] - start[0]).max()
+    assert moved > 0.1, "the engine must move for this test to mean anything"
+    assert 0 < np.abs(halved[8] - start[8]).max() < 0.02 * moved
+
+
+def test_bf16_on_a_cpu_without_native_bfloat16_trains_in_float32_and_says_so(dataset, tmp_path, capsys, monkeypatch):
+    from runout.neural_mpm import training as training_module
+
+    common = dict(data=str(dataset), steps=2, batch_size=2, valid_every=0, progress=False, bf16=True)
+    monkeypatch.setattr(training_module, "cpu_has_native_bf16", lambda: False)
+    plain = train(TrainSettings(out=str(tmp_path / "plain"), **common), TINY)
+    assert "no native bfloat16" in capsys.readouterr().err
+    assert read_checkpoint(tmp_path / "plain" / CHECKPOINT)["train"]["bf16"] is False
+    monkeypatch.setattr(training_module, "cpu_has_native_bf16", lambda: True)
+    halved = train(TrainSettings(out=str(tmp_path / "native"), **common), TINY)
+    assert "no native bfloat16" not in capsys.readouterr().err
+    assert read_checkpoint(tmp_path / "native" / CHECKPOINT)["train"]["bf16"] is True
+    assert not halved.bf16  # the engine a run gives is float32, as users run it
+    changed = [k for k, v in plain.state_dict().items() if not torch.equal(v, halved.state_dict()[k])]
+    assert changed, "bfloat16 steps must differ from float32 steps"
+
+
+def test_runout_train_passes_bf16_to_the_neural_mpm(dataset, tmp_path, capsys, monkeypatch):
+    from runout.neural_mpm import training as training_module
+
+    monkeypatch.setattr(training_module, "cpu_has_native_bf16", lambda: True)
+    code, said = runout_train(["--data", dataset, "--steps", 1, *TINY_OPTIONS, "--bf16", "--out", tmp_path / "run"], capsys)
+    assert code == 0, said
+    assert read_checkpoint(tmp_path / "run" / CHECKPOINT)["train"]["bf16"] is True

@@ -55,6 +55,7 @@ from runout.train_settings import (  # noqa: F401  (the settings, re-exported)
     schedule_phase,
 )
 from runout.training.average import WeightAverage, last_step_weights
+from runout.training.precision import cpu_has_native_bf16
 from runout.training.trainer import Budget, Context, Hook, LogFile, Trainer  # noqa: F401  (Context re-exported)
 
 CHECKPOINT = "checkpoint.pt"
@@ -236,11 +237,6 @@ def continued_onset(init: Path | None) -> dict:
         return {}
     share, frames = schedule_phase(schedule, int(ckpt.get("step", 0)), schedule[0][1:])
     return {"onset_schedule": ((0, share, frames),)}
-
-
-def cpu_has_native_bf16() -> bool:
-    """Whether this CPU multiplies bfloat16 natively (AVX512-BF16 or AMX, as oneDNN sees it)."""
-    return bool(torch.ops.mkldnn._is_mkldnn_bf16_supported())
 
 
 def _native_bf16(cfg: TrainConfig, ctx: Context) -> TrainConfig:

@@ -193,7 +193,7 @@ def check_settings(cfg: TrainConfig, names=tuple(SETTING_LIMITS)) -> None:
 # engine, they are refused. Every other option serves both (--steps, --lr, --mirror, ...).
 ENGINE_OPTIONS = {
     "gns": ("device", "radius", "frame_stride", "pushforward", "compile_network", "rest_windows",
-            "exact_rest", "onset_schedule", "overburden", "latent", "hidden", "message_passing", "keep_every", "bf16",
+            "exact_rest", "onset_schedule", "overburden", "latent", "hidden", "message_passing", "keep_every",
             "checkpoint_layers"),
     "neural-mpm": ("calls", "lr_final", "rest_share", "data_shares", "max_cpu_hours", "threads", "cell_size", "history",
                    "frames_per_call", "widths", "velocity_sweeps", "front_loss"),

@@ -76,7 +76,7 @@ def train(
     valid_every: int = typer.Option(TrainConfig.valid_every, "--valid-every", help=f"Steps between validation rollouts (0: never; neural-mpm: default {NMPM.valid_every:,}, and on the last step)."),
     valid_trajectories: int = typer.Option(TrainConfig.valid_trajectories, "--valid-trajectories", help=f"Validation trajectories rolled out each time (neural-mpm: default {NMPM.valid_count}, from rest)."),
     seed: int = typer.Option(TrainConfig.seed, "--seed", help="Seed of the initial weights, window sampling and noise."),
-    bf16: bool = typer.Option(TrainConfig.bf16, "--bf16", help="Autocast the network to bfloat16 (faster on GPUs and on CPUs with AVX512-BF16 or AMX; elsewhere on a CPU it trains in float32, with a warning)."),
+    bf16: bool = typer.Option(TrainConfig.bf16, "--bf16/--no-bf16", help="Autocast the network to bfloat16 (faster on GPUs and on CPUs with AVX512-BF16 or AMX; elsewhere on a CPU it trains in float32, with a warning). neural-mpm: the U-Net in the training steps only; points, transfers and validation stay float32."),
     checkpoint_layers: bool = typer.Option(TrainConfig.checkpoint_layers, "--checkpoint-layers/--no-checkpoint-layers", help="Recompute processor steps in backward to save memory."),
     progress: bool = typer.Option(TrainConfig.progress, "--progress/--no-progress", help="Show a progress bar on stderr (log.jsonl records the run either way)."),
     force: bool = typer.Option(False, "--force", help="Start afresh in --out, removing a previous run or another command's results there."),

@@ -27,6 +27,7 @@ both (the inverse analysis runs through it).
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -78,6 +79,18 @@ class NeuralMPM(nn.Module):
         self.config = config
         self.net = UNet(config.in_channels, 2 * config.frames_per_call, config.widths)
         self.data_ranges: dict | None = None  # what it was trained on (runout.learned.training_range)
+        self.bf16 = False  # autocast the U-Net to bfloat16 (training's --bf16, inside bfloat16())
+
+    @contextmanager
+    def bfloat16(self, enabled: bool = True):
+        """Inside the block (when enabled) the U-Net runs in bfloat16 autocast; the transfers
+        between points and grid and the positions stay float32 (a bfloat16 position of 800 m
+        would be off by up to 2 m)."""
+        before, self.bf16 = self.bf16, enabled
+        try:
+            yield self
+        finally:
+            self.bf16 = before
 
     # ------------------------------------------------------------------ contract of a learned engine
 
@@ -199,7 +212,9 @@ class NeuralMPM(nn.Module):
             means = torch.cat([sharpened(transfer, vel, soil, means[:, :vel.shape[1]], fade, cfg.velocity_sweeps),
                                means[:, vel.shape[1]:]], 1)
         inputs = torch.cat([fill, g[:, 1:2], means, static], 1)
-        grid_velocity = self.net(inputs) * cfg.velocity_scale  # [B, 2 m, NX, NY] m per frame
+        with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16):
+            out = self.net(inputs)
+        grid_velocity = out.float() * cfg.velocity_scale  # [B, 2 m, NX, NY] m per frame
         moving = (~pts.fixed)[:, None]
         frames = []
         for k in range(cfg.frames_per_call):

@@ -41,6 +41,10 @@ class TrainSettings:
     max_hours: float | None = None
     max_cpu_hours: float | None = None
     threads: int = 1
+    # autocast the U-Net to bfloat16 in the training steps (the transfers between points and grid,
+    # the positions and the validation rollouts stay float32); on a CPU without native bfloat16
+    # (AVX512-BF16 or AMX) the run trains in float32 and says so
+    bf16: bool = False
     progress: bool = True
     # a neural-MPM checkpoint a new run starts from: its engine (config and weights, the weight
     # average where it kept one) with the run's own velocity_sweeps, a fresh optimiser, step 0
