@@ -403,6 +403,50 @@ def test_the_fronts_weight_adds_to_the_points_loss_and_zero_leaves_it_as_it_was(
         assert torch.allclose(window_loss(engine, window, 2, 0.5), points + 0.5 * fronts)
 
 
+def test_the_toes_term_is_each_sides_outer_points_against_their_own_truth():
+    from runout.neural_mpm.training import toe_term
+
+    gen = torch.Generator().manual_seed(1)
+    scene = torch.repeat_interleave(torch.arange(3), torch.tensor([40, 25, 60]))
+    x_true = torch.rand(4, 125, generator=gen, dtype=torch.float64) * 100.0
+    squared = torch.rand(4, 125, generator=gen, dtype=torch.float64, requires_grad=True)
+    term = toe_term(squared, x_true, scene, 3, share=0.1)
+    by_hand, toes = 0.0, torch.zeros_like(x_true, dtype=torch.bool)
+    for b in range(3):
+        cols = torch.nonzero(scene == b).flatten()
+        for f in range(4):
+            ordered = np.sort(x_true[f, cols].numpy())
+            for side in (x_true[f, cols] <= np.quantile(ordered, 0.1), x_true[f, cols] >= np.quantile(ordered, 0.9)):
+                by_hand += squared[f, cols][side].sum().item() / (4 * int(side.sum())) / 3
+                toes[f, cols[side]] = True
+    assert torch.isclose(term, torch.tensor(by_hand, dtype=torch.float64))
+    assert 0.15 < toes.float().mean() < 0.3  # about a tenth on each side
+    term.backward()
+    assert torch.all(squared.grad[~toes] == 0) and torch.all(squared.grad[toes] > 0)
+    assert toe_term(torch.zeros_like(x_true), x_true, scene, 3) == 0  # the truth costs nothing
+
+
+def test_the_toes_weight_adds_to_the_points_loss_and_zero_leaves_it_as_it_was(dataset):
+    from runout.neural_mpm.training import toe_term, window_loss
+    from runout.neural_mpm.windows import WindowSampler
+
+    sampler = WindowSampler.from_split(dataset, "train", history=3, material_width=2)
+    torch.manual_seed(0)
+    engine = NeuralMPM(NeuralMPMConfig(frames_per_call=4, widths=(8, 16), velocity_scale=0.1))
+    torch.nn.init.normal_(engine.net.out.weight, std=0.05)  # an engine that moves
+    window = sampler.draw(2, 8, 0.0, 0.5, torch.Generator().manual_seed(3))
+    with torch.no_grad():
+        points = window_loss(engine, window, 2)
+        assert window_loss(engine, window, 2, 0.0, 0.0) == points
+        pred = engine.advance(window.x, window.velocities, window.points, 2)
+        soil = ~window.points.fixed
+        cell = engine.config.cell_size
+        squared = (((pred[:, soil] - window.targets[:, soil]) / cell) ** 2).sum(-1)
+        toes = toe_term(squared, window.targets[:, soil, 0], window.points.scene[soil], 2)
+        assert toes > 0
+        assert torch.allclose(window_loss(engine, window, 2, 0.0, 2.0), points + 2.0 * toes)
+
+
 def test_velocity_noise_leaves_the_scene_at_rest_and_the_targets_exact(dataset):
     from runout.neural_mpm.windows import WindowSampler
 
@@ -496,6 +540,8 @@ def test_a_run_of_runout_train_stopped_by_ctrl_c_resumes_exactly(dataset, tmp_pa
     (["--velocity-sweeps", "4"], "--velocity-sweeps is an option of --engine neural-mpm only"),
     (["--engine", "neural-mpm", "--front-loss", "-1"], "--front-loss = -1 is outside the allowed range"),
     (["--front-loss", "0.1"], "--front-loss is an option of --engine neural-mpm only"),
+    (["--engine", "neural-mpm", "--toe-loss", "101"], "--toe-loss = 101 is outside the allowed range"),
+    (["--toe-loss", "1"], "--toe-loss is an option of --engine neural-mpm only"),
 ])
 def test_an_option_of_the_other_engine_or_out_of_range_is_one_sentence(tmp_path, capsys, argv, words):
     from test_cli_exits import one_sentence

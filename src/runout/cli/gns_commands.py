@@ -51,6 +51,7 @@ def train(
     data_shares: str = typer.Option(NMPM.data_shares, "--data-shares", help="neural-mpm: the part of the batches from each dataset of --data, e.g. 3,1 (default: by their scenes)."),
     threads: int = typer.Option(NMPM.threads, "--threads", help="neural-mpm: CPU threads of the training (1: the pilots' measure of CPU time)."),
     front_loss: float = typer.Option(NMPM.front_loss, "--front-loss", help="neural-mpm: weight of the fronts in the loss, 0-100: per scene and frame the squared distance (cells²) between the predicted and the MPM's largest soil x and between their smallest (the runout fronts L_f), beside the mean over all points (0: the points alone)."),
+    toe_loss: float = typer.Option(NMPM.toe_loss, "--toe-loss", help="neural-mpm: weight of the toes in the loss, 0-100: per scene and frame the mean squared position error (cells²) of the soil points in each side's outermost 5 % by true x, the two sides summed, beside the mean over all points (0: the points alone)."),
     cell_size: float = typer.Option(NeuralMPMConfig.cell_size, "--cell-size", help="neural-mpm: m between the grid's nodes (new runs only; --resume keeps the checkpoint's engine)."),
     history: int = typer.Option(NeuralMPMConfig.history, "--history", help="neural-mpm: past frame velocities per input (new runs only)."),
     frames_per_call: int = typer.Option(NeuralMPMConfig.frames_per_call, "--frames-per-call", help="neural-mpm: m, the frames predicted per U-Net call (new runs only)."),

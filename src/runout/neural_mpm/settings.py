@@ -30,6 +30,11 @@ class TrainSettings:
     # between the predicted and the MPM's largest soil x and between their smallest (the runout
     # fronts the paper measures, L_f), beside the mean over all points; 0: the points alone
     front_loss: float = 0.0
+    # weight of the toes' term of the loss: per scene and frame, the mean squared position error
+    # (cells^2) of the soil points in each side's outermost 5 % by true x, the two sides summed,
+    # beside the mean over all points (each point against its own truth: no pull on the spread);
+    # 0: the points alone
+    toe_loss: float = 0.0
     # decay per step of the weight average validated and saved as the model (0: the last step's
     # weights, as the pilots of rounds 1-3); the last step's weights are kept for --resume
     ema: float = 0.0

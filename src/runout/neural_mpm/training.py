@@ -55,19 +55,50 @@ def learning_rate(step: int, s: TrainSettings) -> float:
     return s.lr * (s.lr_final / s.lr) ** (min(step, span) / span)
 
 
-def window_loss(engine: NeuralMPM, window, calls: int, front_weight: float = 0.0) -> torch.Tensor:
+def window_loss(engine: NeuralMPM, window, calls: int, front_weight: float = 0.0,
+                toe_weight: float = 0.0) -> torch.Tensor:
     """Mean squared soil position error over the window's frames, in cells squared; with
-    front_weight, plus that weight times the fronts' term (front_term)."""
+    front_weight, plus that weight times the fronts' term (front_term); with toe_weight, plus
+    that weight times the toes' term (toe_term)."""
     pred = engine.advance(window.x, window.velocities, window.points, calls)
     soil = ~window.points.fixed
     cell = engine.config.cell_size
     err = (pred[:, soil] - window.targets[:, soil]) / cell
-    loss = (err ** 2).sum(-1).mean()
+    squared = (err ** 2).sum(-1)
+    loss = squared.mean()
+    scene = window.points.scene[soil]
     if front_weight > 0:
-        scene = window.points.scene[soil]
         loss = loss + front_weight * front_term(pred[:, soil, 0] / cell, window.targets[:, soil, 0] / cell, scene,
                                                 window.points.batch)
+    if toe_weight > 0:
+        loss = loss + toe_weight * toe_term(squared, window.targets[:, soil, 0], scene, window.points.batch)
     return loss
+
+
+TOE_SHARE = 0.05  # the toes of toe_term: each side's outermost 5 % of a scene's soil, by true x
+
+
+def toe_term(squared: torch.Tensor, x_true: torch.Tensor, scene: torch.Tensor, batch: int,
+             share: float = TOE_SHARE) -> torch.Tensor:
+    """Mean over scenes of the mean squared position error of the points in each side's toe,
+    summed over the two sides: squared [frames, P] each soil point's squared error (cells^2),
+    x_true [frames, P] its true x, scene [P] its scene in a batch of `batch`. A frame's toe on
+    the right is the points whose true x is at or beyond the scene's (1 - share) quantile, on
+    the left at or below its `share` quantile. Unlike the farthest point (front_term), each
+    point is still compared with its own true position, so the term weights the toes without
+    rewarding a narrower spread."""
+    total = squared.new_zeros(())
+    used = 0
+    for b in range(batch):
+        mine = scene == b
+        if not bool(mine.any()):
+            continue
+        x, err = x_true[:, mine], squared[:, mine]
+        edges = torch.quantile(x, torch.tensor([share, 1.0 - share], dtype=x.dtype), dim=1)  # [2, frames]
+        for toe in (x <= edges[0, :, None], x >= edges[1, :, None]):
+            total = total + (err * toe).sum() / toe.sum()
+        used += 1
+    return total / max(used, 1)
 
 
 def front_term(x: torch.Tensor, x_true: torch.Tensor, scene: torch.Tensor, batch: int) -> torch.Tensor:
@@ -184,7 +215,7 @@ class Run:
         window = self.sampler.draw(s.batch_size, span, s.rest_share, s.mirror_share, generator,
                                    s.noise * self.engine.config.velocity_scale)
         with self.engine.bfloat16(s.bf16):
-            loss = window_loss(self.engine, window, s.calls, s.front_loss)
+            loss = window_loss(self.engine, window, s.calls, s.front_loss, s.toe_loss)
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         self.optimizer.step()
