@@ -447,6 +447,35 @@ def test_the_toes_weight_adds_to_the_points_loss_and_zero_leaves_it_as_it_was(da
         assert torch.allclose(window_loss(engine, window, 2, 0.0, 2.0), points + 2.0 * toes)
 
 
+def test_motion_weighting_draws_the_moving_scenes_by_their_displacement_and_zero_draws_as_before():
+    from runout.neural_mpm.windows import MOTION_FLOOR_M, WindowSampler
+
+    frames, points = 40, 6
+    still = np.zeros((frames, points, 2), np.float32)
+    moving = np.zeros((frames, points, 2), np.float32)
+    moving[:, :, 0] = np.linspace(0.0, 32.0, frames)[:, None]  # every point ends 32 m from its start
+    fixed = np.zeros(points, bool)
+    material = np.zeros((points, 2), np.float32)
+    bounds = [[-100.0, 100.0], [-100.0, 100.0]]
+
+    def sampler():
+        return WindowSampler([still, moving], [fixed, fixed], [material, material], bounds, history=2)
+
+    def drawn(s: WindowSampler, seed: int):
+        """The windows and the share of them from the moving scene."""
+        w = s.draw(64, 4, 0.0, 0.0, torch.Generator().manual_seed(seed))
+        return w, float((w.targets[-1, :, 0] - w.x[:, 0]).abs().reshape(64, points).amax(1).gt(0).float().mean())
+
+    plain, _ = drawn(sampler(), 0)
+    same, _ = drawn(sampler().weight_by_motion(0.0), 0)
+    assert torch.equal(plain.x, same.x) and torch.equal(plain.targets, same.targets)  # 0: as before
+    weighted = sampler().weight_by_motion(1.0)
+    assert weighted.weights.tolist() == pytest.approx([MOTION_FLOOR_M, 32.0 + MOTION_FLOOR_M])
+    moving_share = np.mean([drawn(weighted, seed)[1] for seed in range(20)])
+    assert moving_share == pytest.approx(40.0 / 48.0, abs=0.04)  # 32 + 8 against 8
+    assert abs(np.mean([drawn(sampler(), seed)[1] for seed in range(20)]) - 0.5) < 0.05
+
+
 def test_velocity_noise_leaves_the_scene_at_rest_and_the_targets_exact(dataset):
     from runout.neural_mpm.windows import WindowSampler
 
@@ -542,6 +571,7 @@ def test_a_run_of_runout_train_stopped_by_ctrl_c_resumes_exactly(dataset, tmp_pa
     (["--front-loss", "0.1"], "--front-loss is an option of --engine neural-mpm only"),
     (["--engine", "neural-mpm", "--toe-loss", "101"], "--toe-loss = 101 is outside the allowed range"),
     (["--toe-loss", "1"], "--toe-loss is an option of --engine neural-mpm only"),
+    (["--engine", "neural-mpm", "--motion-weighting", "-1"], "--motion-weighting = -1 is outside the allowed range"),
 ])
 def test_an_option_of_the_other_engine_or_out_of_range_is_one_sentence(tmp_path, capsys, argv, words):
     from test_cli_exits import one_sentence

@@ -196,7 +196,7 @@ ENGINE_OPTIONS = {
             "exact_rest", "onset_schedule", "overburden", "latent", "hidden", "message_passing", "keep_every",
             "checkpoint_layers"),
     "neural-mpm": ("calls", "lr_final", "rest_share", "data_shares", "max_cpu_hours", "threads", "cell_size", "history",
-                   "frames_per_call", "widths", "velocity_sweeps", "front_loss", "toe_loss"),
+                   "frames_per_call", "widths", "velocity_sweeps", "front_loss", "toe_loss", "motion_weighting"),
 }
 ENGINES = tuple(ENGINE_OPTIONS)
 
@@ -205,7 +205,8 @@ NEURAL_MPM_LIMITS = {
     "steps": (1, MAX_STEPS, True, False), "batch_size": (1, 64, True, False), "calls": (1, 64, True, False),
     "lr": (0.0, 1.0, False, True), "lr_final": (0.0, 1.0, False, True), "lr_decay_steps": (1.0, 1e12, False, False),
     "rest_share": (0.0, 1.0, False, False), "noise": (0.0, 10.0, False, False), "mirror_share": (0.0, 1.0, False, False), "ema": (0.0, 0.99999, False, False),
-    "front_loss": (0.0, 100.0, False, False), "toe_loss": (0.0, 100.0, False, False), "valid_every": (0, 1_000_000_000, True, False), "valid_count": (1, 10_000, True, False),
+    "front_loss": (0.0, 100.0, False, False), "toe_loss": (0.0, 100.0, False, False),
+    "motion_weighting": (0.0, 4.0, False, False), "valid_every": (0, 1_000_000_000, True, False), "valid_count": (1, 10_000, True, False),
     "save_every": (1, 1_000_000_000, True, False), "log_every": (1, 1_000_000_000, True, False),
     "max_hours": (0.0, 1000.0, False, True), "max_cpu_hours": (0.0, 1e6, False, True), "threads": (1, 1024, True, False),
 }

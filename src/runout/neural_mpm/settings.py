@@ -35,6 +35,9 @@ class TrainSettings:
     # beside the mean over all points (each point against its own truth: no pull on the spread);
     # 0: the points alone
     toe_loss: float = 0.0
+    # exponent of the draw of each dataset's simulations by motion: weight (D + 8 m)^exponent, D the
+    # mean final displacement of its soil (m); 0: uniformly
+    motion_weighting: float = 0.0
     # decay per step of the weight average validated and saved as the model (0: the last step's
     # weights, as the pilots of rounds 1-3); the last step's weights are kept for --resume
     ema: float = 0.0

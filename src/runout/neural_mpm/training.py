@@ -175,7 +175,7 @@ class Run:
         if init is not None:  # the file's engine; only how its input velocities are sharpened may change
             config = replace(NeuralMPMConfig.from_dict(init["config"]), velocity_sweeps=config.velocity_sweeps)
         sampler = WindowSampler.from_splits(datasets(settings), "train", config.history, config.material_width,
-                                            shares(settings))
+                                            shares(settings)).weight_by_motion(settings.motion_weighting)
         if config.velocity_scale <= 0:  # a new run: the unit of velocity from its data
             config = replace(config, velocity_scale=sampler.velocity_statistics()["scale"])
         with torch.random.fork_rng():  # the initial weights follow the run's seed
