@@ -214,7 +214,7 @@ class NeuralMPM(nn.Module):
         inputs = torch.cat([fill, g[:, 1:2], means, static], 1)
         with torch.autocast(self.device.type, dtype=torch.bfloat16, enabled=self.bf16):
             out = self.net(inputs)
-        grid_velocity = out.float() * cfg.velocity_scale  # [B, 2 m, NX, NY] m per frame
+        grid_velocity = out.to(inputs.dtype) * cfg.velocity_scale  # [B, 2 m, NX, NY] m per frame (bf16 back to the points' type)
         moving = (~pts.fixed)[:, None]
         frames = []
         for k in range(cfg.frames_per_call):
