@@ -55,7 +55,7 @@ from runout.train_settings import (  # noqa: F401  (the settings, re-exported)
     schedule_phase,
 )
 from runout.training.average import WeightAverage, last_step_weights
-from runout.training.precision import cpu_has_native_bf16
+from runout.training.precision import NO_NATIVE_BF16, cpu_has_native_bf16
 from runout.training.trainer import Budget, Context, Hook, LogFile, Trainer  # noqa: F401  (Context re-exported)
 
 CHECKPOINT = "checkpoint.pt"
@@ -246,8 +246,7 @@ def _native_bf16(cfg: TrainConfig, ctx: Context) -> TrainConfig:
     if not cfg.bf16 or ctx.device.type != "cpu" or cpu_has_native_bf16():
         return cfg
     if ctx.writer:
-        tqdm.write("--bf16: this CPU has no native bfloat16 (AVX512-BF16 or AMX), where bfloat16 is about 14 times "
-                   "slower than float32; training in float32 instead.")
+        tqdm.write(NO_NATIVE_BF16)
     return replace(cfg, bf16=False)
 
 

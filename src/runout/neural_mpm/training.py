@@ -40,7 +40,7 @@ from runout.neural_mpm.engine import NeuralMPM, NeuralMPMConfig
 from runout.neural_mpm.settings import TrainSettings
 from runout.neural_mpm.windows import WindowSampler
 from runout.training.average import WeightAverage, last_step_weights
-from runout.training.precision import cpu_has_native_bf16
+from runout.training.precision import NO_NATIVE_BF16, cpu_has_native_bf16
 from runout.training.trainer import Budget, Hook, LogFile, Trainer
 
 CHECKPOINT = "checkpoint.pt"
@@ -286,8 +286,7 @@ def native_bf16(settings: TrainSettings) -> TrainSettings:
     bfloat16 would slow training about 14 times instead of speeding it."""
     if not settings.bf16 or cpu_has_native_bf16():
         return settings
-    tqdm.write("--bf16: this CPU has no native bfloat16 (AVX512-BF16 or AMX), where bfloat16 is about 14 times "
-               "slower than float32; training in float32 instead.", file=sys.stderr)
+    tqdm.write(NO_NATIVE_BF16, file=sys.stderr)
     return replace(settings, bf16=False)
 
 
