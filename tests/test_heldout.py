@@ -80,8 +80,13 @@ def test_the_command_scores_any_learned_engines_file_and_writes_metrics(tmp_path
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["valid_split"]["model"]["scenes"] == 2 and "valid_split_mirrored" in metrics
     assert metrics["curves"]["last_step"] == 2 and (out / "curves.png").is_file()
-    printed = capsys.readouterr().out
+    captured = capsys.readouterr()
+    printed = captured.out
+    assert "held-out rollouts from rest" in captured.err  # a bar over the scenes by default
     assert "2 valid scenes from rest: position error" in printed and "2 valid scenes mirrored from rest" in printed
     assert "(standing still" in printed
+    main([str(a) for a in ["evaluate", "heldout", tmp_path / "run" / "checkpoint.pt", "--data", data, "--split", "valid",
+                           "--limit", "1", "--no-column", "--no-progress", "--force", "--out", out]])
+    assert "held-out rollouts" not in capsys.readouterr().err
     code, err = run(["evaluate", "heldout", tmp_path / "run" / "checkpoint.pt", "--data", data, "--out", out], capsys)
     assert code == 2 and "test.npz" in err  # the default split is test, which this dataset lacks

@@ -262,7 +262,7 @@ def heldout(
     no_column: bool = typer.Option(False, "--no-column", help="Skip the column run (e.g. for a friction-only base model)."),
     frames: int = typer.Option(240, "--frames", help="Frames of the column runs."),
     log: Path = typer.Option(None, "--log", help="The training run's log (GNS: log.jsonl; neural MPM: train.log.jsonl, its held-out error of each dataset): also draw OUT/curves.png from it."),
-    force: bool = FORCE,
+    progress: bool = PROGRESS, force: bool = FORCE,
 ) -> None:
     """Held-out scenes from rest (position error, fronts, extent, displacement, by family and start, beside standing still) and a column collapse against the MPM, for any learned engine; writes OUT/metrics.json."""
     from runout.cli.gns_commands import check_range
@@ -289,7 +289,8 @@ def heldout(
     if not no_column:
         engine.check_frames(frames, "--frames")
     claim(folder)
-    run_heldout(engine, model, data, out, split, limit, mirrored, None if no_column else column, frames, log, typer.echo)
+    run_heldout(engine, model, data, out, split, limit, mirrored, None if no_column else column, frames, log, typer.echo,
+                progress)
     typer.echo(f"wrote {out / 'metrics.json'}")
 
 

@@ -119,5 +119,9 @@ def scene_kinds(data: str | Path, split: str, truths: list[Trajectory]) -> dict[
 def rollout_all(engine, truths, progress: bool = False) -> list:
     """Every truth rolled out from rest over all its frames, one scene at a time: batching
     the GNS's scenes (runout.gns.rollout.rollout_trajectories) was slower on the 2-core CPU (8
-    validation scenes, 60 frames: 331 s against 254 s, 1 thread, loaded, 2026-12-03)."""
-    return [engine.rollout_trajectory(t, t.n_frames, stop_speed=None, progress=progress) for t in truths]
+    validation scenes, 60 frames: 331 s against 254 s, 1 thread, loaded, 2026-12-03).
+    progress: one bar over the scenes on stderr."""
+    from tqdm.auto import tqdm
+
+    return [engine.rollout_trajectory(t, t.n_frames, stop_speed=None)
+            for t in tqdm(truths, disable=not progress, desc="held-out rollouts from rest", unit="scene")]

@@ -31,16 +31,16 @@ WRITES = ("metrics.json", "column.png", "curves.png")
 
 def run_heldout(engine, model: Path, data: Path, out: Path, split: str = "test", limit: int = 16, mirrored: bool = False,
                 column: Path | None = None, frames: int = 240, log: Path | None = None,
-                echo: Callable[[str], None] = print) -> dict:
+                echo: Callable[[str], None] = print, progress: bool = False) -> dict:
     """The measures above for the checkpoint `model`; writes OUT/metrics.json (and the pictures)
     and returns the metrics. engine: the model's learned engine (runout.learned.load.load_engine);
-    column None: no column run."""
+    column None: no column run; progress: a bar over the held-out scenes on stderr."""
     from runout.evaluate.heldout import evaluate_heldout
 
     metrics = {"model": str(model)}
     for key in heldout_keys(split, mirrored):
         t0 = time.perf_counter()
-        metrics[key] = evaluate_heldout(engine, data, split, limit, mirrored=key.endswith("mirrored"))
+        metrics[key] = evaluate_heldout(engine, data, split, limit, progress, mirrored=key.endswith("mirrored"))
         metrics[key]["rollout_wall_s"] = round(time.perf_counter() - t0, 1)
     if column is not None:
         metrics["column"] = column_run(engine, column, frames, out)
