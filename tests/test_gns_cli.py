@@ -50,7 +50,8 @@ def test_rollout_against_a_ground_truth_reports_position_error_and_runout(tmp_pa
     assert result.exit_code == 0, result.output
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["frames_compared"] == 14
-    assert {"position_mse_final_m2", "normalised_runout_gns", "runout_error"} <= metrics.keys()
+    assert {"position_mse_final_m2", "normalised_runout_predicted", "runout_error"} <= metrics.keys()
+    assert metrics["engine"] == "GNS"
     assert (out / "position_mse.png").is_file() and (out / "animation.gif").is_file()
 
 

@@ -132,24 +132,26 @@ def position_mse(predicted: Trajectory, truth: Trajectory) -> np.ndarray:
 
 
 def compare(predicted: Trajectory, truth: Trajectory) -> dict:
-    """How well a prediction (a GNS rollout) follows its truth (the MPM): position MSE (final
-    and mean over time), extent runouts, their normalised runouts from the truth's initial
-    extent and the relative runout error (L_f,GNS - L_f,MPM) / L_f,MPM, read at the last
-    time the two share (at_common_times; frames_compared counts the shared times)."""
+    """How well a prediction (a learned engine's rollout) follows its truth (the MPM): position
+    MSE (final and mean over time), extent runouts, their normalised runouts from the truth's
+    initial extent and the relative runout error (L_f,predicted - L_f,MPM) / L_f,MPM, read at
+    the last time the two share (at_common_times; frames_compared counts the shared times).
+    The keys say "predicted", not the engine (rollout metadata names it); until 2026-12-07
+    they said "gns" for either engine."""
     predicted, truth = at_common_times(predicted, truth)
     t = truth.n_frames
     mse = position_mse(predicted, truth)
-    runout_gns, runout_mpm = runout_extent(predicted, t - 1), runout_extent(truth, t - 1)
+    runout_predicted, runout_mpm = runout_extent(predicted, t - 1), runout_extent(truth, t - 1)
     initial = runout_extent(truth, 0)
     return {
         "frames_compared": int(t),
         "position_mse_final_m2": float(mse[-1]),
         "position_mse_mean_m2": float(mse.mean()),
-        "runout_gns_m": runout_gns,
+        "runout_predicted_m": runout_predicted,
         "runout_mpm_m": runout_mpm,
-        "normalised_runout_gns": _growth(initial, runout_gns),
+        "normalised_runout_predicted": _growth(initial, runout_predicted),
         "normalised_runout_mpm": _growth(initial, runout_mpm),
-        "runout_error": (runout_gns - runout_mpm) / runout_mpm if runout_mpm > 0 else 0.0,
+        "runout_error": (runout_predicted - runout_mpm) / runout_mpm if runout_mpm > 0 else 0.0,
     }
 
 

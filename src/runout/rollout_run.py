@@ -76,6 +76,7 @@ def write_rollout_outputs(predicted: Trajectory, truth: Trajectory | None, out: 
     save_trajectory(predicted, out, feature_width)
     save_snapshots(predicted, out / "snapshots.png")
     metrics = {
+        "engine": label,
         "frames": predicted.n_frames,
         "runout_m": runout_extent(predicted, -1),
         "normalised_runout": normalised_extent(predicted),
