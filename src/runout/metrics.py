@@ -165,8 +165,13 @@ def displacement_error(predicted: Trajectory, truth: Trajectory) -> np.ndarray:
 
 def final_displacement(traj: Trajectory) -> np.ndarray:
     """[S] distance (m) each soil point moved from the first to the last frame."""
-    soil = traj.soil
-    return np.linalg.norm(traj.positions[-1, soil].astype(float) - traj.positions[0, soil], axis=-1)
+    return soil_displacement(traj.positions, traj.soil)
+
+
+def soil_displacement(positions: np.ndarray, soil: np.ndarray) -> np.ndarray:
+    """[S] distance (m) each soil point (soil: [N] mask) of positions [T, N, 2] moved from the
+    first to the last frame."""
+    return np.linalg.norm(positions[-1, soil].astype(float) - positions[0, soil], axis=-1)
 
 
 def velocities(traj: Trajectory, frame: int) -> np.ndarray:

@@ -24,17 +24,12 @@ import torch
 
 from runout.defaults import PARTICLE_TYPE_KINEMATIC
 from runout.errors import InputError
+from runout.metrics import soil_displacement
 from runout.neural_mpm.engine import Points
 from runout.simfiles import read_metadata, read_simulations
 
 
 MOTION_FLOOR_M = 8.0  # m added to each simulation's displacement under weight_by_motion: still scenes keep a weight
-
-
-def final_displacement(positions: torch.Tensor, fixed: torch.Tensor) -> float:
-    """Mean distance (m) between the soil points' last and first positions."""
-    soil = ~fixed
-    return float((positions[-1, soil] - positions[0, soil]).norm(dim=-1).mean()) if bool(soil.any()) else 0.0
 
 
 @dataclass
@@ -76,8 +71,8 @@ class WindowSampler:
         exponent 1 a dam that fails by 50 m is drawn about 7 times as often as one that stands
         still. 0 draws uniformly, exactly as before."""
         self.motion_weighting = exponent
-        self.weights = torch.tensor([final_displacement(p, f) + MOTION_FLOOR_M for p, f in zip(self.positions, self.fixed)],
-                                    dtype=torch.float64) ** exponent
+        moved = [soil_displacement(p.numpy(), ~f.numpy()) for p, f in zip(self.positions, self.fixed)]
+        self.weights = torch.tensor([(d.mean() if d.size else 0.0) + MOTION_FLOOR_M for d in moved], dtype=torch.float64) ** exponent
         return self
 
     @classmethod
