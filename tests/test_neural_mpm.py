@@ -476,6 +476,32 @@ def test_motion_weighting_draws_the_moving_scenes_by_their_displacement_and_zero
     assert abs(np.mean([drawn(sampler(), seed)[1] for seed in range(20)]) - 0.5) < 0.05
 
 
+def test_motion_weighting_per_dataset_weights_one_and_draws_the_other_uniformly():
+    from runout.neural_mpm.windows import MOTION_FLOOR_M, WindowSampler
+
+    frames, points = 40, 6
+    still = np.zeros((frames, points, 2), np.float32)
+    moving = np.zeros((frames, points, 2), np.float32)
+    moving[:, :, 0] = np.linspace(0.0, 32.0, frames)[:, None]
+    fixed = np.zeros(points, bool)
+    weighted, plain = np.ones((points, 2), np.float32), np.zeros((points, 2), np.float32)  # the material tells them apart
+    bounds = [[-100.0, 100.0], [-100.0, 100.0]]
+    sampler = WindowSampler([still, moving, still, moving], [fixed] * 4, [weighted, weighted, plain, plain], bounds,
+                            history=2, source=[0, 0, 1, 1], shares=[1.0, 1.0]).weight_by_motion([1.0, 0.0])
+    assert sampler.weights.tolist() == pytest.approx([MOTION_FLOOR_M, 32.0 + MOTION_FLOOR_M, 1.0, 1.0])
+    shares = {0: [], 1: []}  # dataset -> share of each of its batches' windows from the moving scene
+    for seed in range(60):
+        w = sampler.draw(32, 4, 0.0, 0.0, torch.Generator().manual_seed(seed))
+        moved = (w.targets[-1, :, 0] - w.x[:, 0]).abs().reshape(32, points).amax(1).gt(0).float().mean()
+        shares[0 if float(w.points.material[0, 0]) == 1.0 else 1].append(float(moved))
+    assert len(shares[0]) > 15 and len(shares[1]) > 15
+    assert np.mean(shares[0]) == pytest.approx(40.0 / 48.0, abs=0.04)  # 32 + 8 against 8
+    assert np.mean(shares[1]) == pytest.approx(0.5, abs=0.05)  # uniformly
+    with pytest.raises(Exception, match="3 exponents for 2 datasets"):
+        WindowSampler([still, moving], [fixed] * 2, [plain] * 2, bounds, history=2, source=[0, 1],
+                      shares=[1.0, 1.0]).weight_by_motion([1.0, 0.0, 1.0])
+
+
 def test_velocity_noise_leaves_the_scene_at_rest_and_the_targets_exact(dataset):
     from runout.neural_mpm.windows import WindowSampler
 
@@ -572,12 +598,23 @@ def test_a_run_of_runout_train_stopped_by_ctrl_c_resumes_exactly(dataset, tmp_pa
     (["--engine", "neural-mpm", "--toe-loss", "101"], "--toe-loss = 101 is outside the allowed range"),
     (["--toe-loss", "1"], "--toe-loss is an option of --engine neural-mpm only"),
     (["--engine", "neural-mpm", "--motion-weighting", "-1"], "--motion-weighting = -1 is outside the allowed range"),
+    (["--engine", "neural-mpm", "--motion-weighting", "1,x"], "--motion-weighting = 1,x must be one number"),
+    (["--engine", "neural-mpm", "--motion-weighting", "1,5"], "--motion-weighting = 5 is outside the allowed range"),
 ])
 def test_an_option_of_the_other_engine_or_out_of_range_is_one_sentence(tmp_path, capsys, argv, words):
     from test_cli_exits import one_sentence
 
     code, said = runout_train(["--data", tmp_path / "missing", "--out", tmp_path / "run", *argv], capsys)
     assert code == 2 and words in said and one_sentence(said), said
+    assert not (tmp_path / "run").exists()
+
+
+def test_motion_weighting_with_more_exponents_than_datasets_is_one_sentence(dataset, tmp_path, capsys):
+    from test_cli_exits import one_sentence
+
+    code, said = runout_train(["--engine", "neural-mpm", "--data", dataset, "--out", tmp_path / "run",
+                               "--motion-weighting", "1,0"], capsys)
+    assert code == 2 and "--motion-weighting = 1,0 gives 2 exponents for 1 dataset;" in said and one_sentence(said), said
     assert not (tmp_path / "run").exists()
 
 

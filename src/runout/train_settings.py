@@ -206,7 +206,7 @@ NEURAL_MPM_LIMITS = {
     "lr": (0.0, 1.0, False, True), "lr_final": (0.0, 1.0, False, True), "lr_decay_steps": (1.0, 1e12, False, False),
     "rest_share": (0.0, 1.0, False, False), "noise": (0.0, 10.0, False, False), "mirror_share": (0.0, 1.0, False, False), "ema": (0.0, 0.99999, False, False),
     "front_loss": (0.0, 100.0, False, False), "toe_loss": (0.0, 100.0, False, False),
-    "motion_weighting": (0.0, 4.0, False, False), "valid_every": (0, 1_000_000_000, True, False), "valid_count": (1, 10_000, True, False),
+    "valid_every": (0, 1_000_000_000, True, False), "valid_count": (1, 10_000, True, False),
     "save_every": (1, 1_000_000_000, True, False), "log_every": (1, 1_000_000_000, True, False),
     "max_hours": (0.0, 1000.0, False, True), "max_cpu_hours": (0.0, 1e6, False, True), "threads": (1, 1024, True, False),
 }
@@ -222,12 +222,35 @@ def check_neural_mpm(settings: NeuralMPMSettings, config: NeuralMPMConfig) -> No
         if value is not None:
             option = NEURAL_MPM_OPTIONS.get(name, "--" + name.replace("_", "-"))
             checks.number(value, option, None, lo, hi, lo_open=lo_open, whole=whole)
+    motion_exponents(settings.motion_weighting)
     for name in ("cell_size", "history", "frames_per_call", "velocity_sweeps"):
         lo, hi = CONFIG_LIMITS[name]
         checks.number(getattr(config, name), "--" + name.replace("_", "-"), None, lo, hi, whole=name in WHOLE)
     if not widths_allowed(config.widths):
         raise checks.InputError(f"--widths = {','.join(map(str, config.widths))} must be 1 to {MAX_LEVELS} whole numbers "
                                 f"of channels in [1, {MAX_WIDTH}] joined by commas, such as 32,64,96.")
+
+
+MOTION_WEIGHTING_MAX = 4.0  # the largest exponent of --motion-weighting
+
+
+def motion_exponents(value: float | str, datasets: int | None = None) -> list[float]:
+    """--motion-weighting "1" or "1,0,0,1": the exponent of each dataset's draw by motion, one for
+    all or one per dataset (`datasets` of them, when known; a single one is repeated); InputError
+    naming the option unless numbers in [0, 4] joined by commas, as many as the datasets."""
+    text = str(value).strip()
+    try:
+        exponents = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise checks.InputError(f"--motion-weighting = {text} must be one number in [0, {MOTION_WEIGHTING_MAX:g}], or one "
+                                "per dataset of --data joined by commas, such as 1,0,0,1.") from None
+    for e in exponents:
+        checks.number(e, "--motion-weighting", None, 0.0, MOTION_WEIGHTING_MAX)
+    if datasets is not None and len(exponents) not in (1, datasets):
+        raise checks.InputError(f"--motion-weighting = {text} gives {len(exponents)} exponents for {datasets} "
+                                f"dataset{'s' if datasets != 1 else ''}; "
+                                "give one for all or one per dataset of --data.")
+    return exponents * datasets if datasets is not None and len(exponents) == 1 else exponents
 
 
 def parse_widths(text: str) -> tuple[int, ...]:

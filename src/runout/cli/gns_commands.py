@@ -52,7 +52,7 @@ def train(
     threads: int = typer.Option(NMPM.threads, "--threads", help="neural-mpm: CPU threads of the training (1: the pilots' measure of CPU time)."),
     front_loss: float = typer.Option(NMPM.front_loss, "--front-loss", help="neural-mpm: weight of the fronts in the loss, 0-100: per scene and frame the squared distance (cells²) between the predicted and the MPM's largest soil x and between their smallest (the runout fronts L_f), beside the mean over all points (0: the points alone)."),
     toe_loss: float = typer.Option(NMPM.toe_loss, "--toe-loss", help="neural-mpm: weight of the toes in the loss, 0-100: per scene and frame the mean squared position error (cells²) of the soil points in each side's outermost 5 % by true x, the two sides summed, beside the mean over all points (0: the points alone)."),
-    motion_weighting: float = typer.Option(NMPM.motion_weighting, "--motion-weighting", help="neural-mpm: draw each dataset's simulations with weight (D + 8 m)^E, D the mean distance its soil ends from where it started, E this exponent 0-4 (0: uniformly; 1: a dam failing by 50 m about 7 times as often as one standing still)."),
+    motion_weighting: str = typer.Option(str(NMPM.motion_weighting), "--motion-weighting", help="neural-mpm: draw each dataset's simulations with weight (D + 8 m)^E, D the mean distance its soil ends from where it started, E this exponent 0-4 (0: uniformly; 1: a dam failing by 50 m about 7 times as often as one standing still); one for every dataset, or one per dataset of --data joined by commas (1,0,0,1)."),
     cell_size: float = typer.Option(NeuralMPMConfig.cell_size, "--cell-size", help="neural-mpm: m between the grid's nodes (new runs only; --resume keeps the checkpoint's engine)."),
     history: int = typer.Option(NeuralMPMConfig.history, "--history", help="neural-mpm: past frame velocities per input (new runs only)."),
     frames_per_call: int = typer.Option(NeuralMPMConfig.frames_per_call, "--frames-per-call", help="neural-mpm: m, the frames predicted per U-Net call (new runs only)."),
@@ -193,7 +193,7 @@ def _train_neural_mpm(ctx: typer.Context, data: Path, out: Path, resume: bool, f
 
     from runout.outputs import check_folder, claim
     from runout.reading import folder_to_read
-    from runout.train_settings import check_neural_mpm, parse_widths
+    from runout.train_settings import check_neural_mpm, motion_exponents, parse_widths
 
     values = {NEURAL_MPM_SETTING.get(name, name): value for name, value in ctx.params.items() if _given(ctx, name)}
     if values.get("init") is not None:
@@ -213,6 +213,7 @@ def _train_neural_mpm(ctx: typer.Context, data: Path, out: Path, resume: bool, f
     folders = [Path(d.strip()) for d in str(data).split(",") if d.strip()]
     for folder in folders:
         folder_to_read(folder, "dataset folder")
+    motion_exponents(settings.motion_weighting, len(folders))
     if settings.init is not None:  # one sentence now for a missing or other engine's file, before the folder is made
         from runout.learned.load import load_engine
 

@@ -36,8 +36,10 @@ class TrainSettings:
     # 0: the points alone
     toe_loss: float = 0.0
     # exponent of the draw of each dataset's simulations by motion: weight (D + 8 m)^exponent, D the
-    # mean final displacement of its soil (m); 0: uniformly
-    motion_weighting: float = 0.0
+    # mean final displacement of its soil (m); 0: uniformly. One number for every dataset, or one
+    # per dataset of `data` joined by commas ("1,0,0,1": the first and last weighted, the others drawn
+    # uniformly)
+    motion_weighting: str | float = 0.0
     # decay per step of the weight average validated and saved as the model (0: the last step's
     # weights, as the pilots of rounds 1-3); the last step's weights are kept for --resume
     ema: float = 0.0

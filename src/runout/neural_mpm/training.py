@@ -41,6 +41,7 @@ from runout.neural_mpm.settings import TrainSettings
 from runout.neural_mpm.windows import WindowSampler
 from runout.training.average import WeightAverage, last_step_weights
 from runout.training.precision import NO_NATIVE_BF16, cpu_has_native_bf16
+from runout.train_settings import motion_exponents
 from runout.training.trainer import Budget, Hook, LogFile, Trainer
 
 CHECKPOINT = "checkpoint.pt"
@@ -175,7 +176,8 @@ class Run:
         if init is not None:  # the file's engine; only how its input velocities are sharpened may change
             config = replace(NeuralMPMConfig.from_dict(init["config"]), velocity_sweeps=config.velocity_sweeps)
         sampler = WindowSampler.from_splits(datasets(settings), "train", config.history, config.material_width,
-                                            shares(settings)).weight_by_motion(settings.motion_weighting)
+                                            shares(settings)).weight_by_motion(
+                                                motion_exponents(settings.motion_weighting, len(datasets(settings))))
         if config.velocity_scale <= 0:  # a new run: the unit of velocity from its data
             config = replace(config, velocity_scale=sampler.velocity_statistics()["scale"])
         with torch.random.fork_rng():  # the initial weights follow the run's seed

@@ -65,14 +65,20 @@ class WindowSampler:
         self.motion_weighting = 0.0
         self.weights = torch.ones(len(self.positions), dtype=torch.float64)
 
-    def weight_by_motion(self, exponent: float) -> "WindowSampler":
+    def weight_by_motion(self, exponent: float | list[float]) -> "WindowSampler":
         """Draw each dataset's simulations with weights (D + MOTION_FLOOR_M)^exponent instead of
         uniformly, D (m) the mean distance its soil points end from where they started: with
         exponent 1 a dam that fails by 50 m is drawn about 7 times as often as one that stands
-        still. 0 draws uniformly, exactly as before."""
-        self.motion_weighting = exponent
+        still. One exponent for every dataset or one per dataset (the columns drawn uniformly
+        while the dams are weighted, say); 0 draws uniformly, exactly as before."""
+        exponents = [float(exponent)] * len(self.shares) if np.isscalar(exponent) else [float(e) for e in exponent]
+        if len(exponents) != len(self.shares):
+            raise InputError(f"--motion-weighting: {len(exponents)} exponents for {len(self.shares)} datasets; give one "
+                             "for all or one per dataset.")
+        self.motion_weighting = max(exponents)
         moved = [soil_displacement(p.numpy(), ~f.numpy()) for p, f in zip(self.positions, self.fixed)]
-        self.weights = torch.tensor([(d.mean() if d.size else 0.0) + MOTION_FLOOR_M for d in moved], dtype=torch.float64) ** exponent
+        mean = torch.tensor([(d.mean() if d.size else 0.0) + MOTION_FLOOR_M for d in moved], dtype=torch.float64)
+        self.weights = mean ** torch.tensor(exponents, dtype=torch.float64)[self.source]
         return self
 
     @classmethod
