@@ -210,6 +210,12 @@ def test_columns_writes_every_case_with_its_runouts_and_errors(studies):
     assert {float(r["L0_m"]) for r in rows} == {30.0, 20.0}  # columns 150 and 100 m wide, scale 0.2
     summary = json.loads((folder / "summary.json").read_text())
     assert [b["aspect"] for b in summary["by_aspect"]] == [1.0, 2.0] and summary["model"]["steps"] is None
+    for b in summary["by_friction_angle"]:  # signed: predicted minus MPM over MPM, per aspect and friction angle
+        group = [r for r in rows if float(r["aspect"]) == b["aspect"] and float(r["phi_deg"]) == b["phi_deg"]]
+        expected = np.mean([(float(r["runout_norm_predicted"]) / float(r["runout_norm_mpm"]) - 1) * 100 for r in group])
+        assert b["cases"] == len(group) and b["mean_signed_error_percent"] == pytest.approx(expected)
+        assert abs(b["mean_signed_error_percent"]) <= b["mean_ape_percent"] + 1e-9
+    assert sum(b["cases"] for b in summary["by_friction_angle"]) == len(rows)
     assert summary["predicted_wall_s_total"] > 0 and sorted(p.name for p in (folder / "predicted").iterdir()) == [r["case"] for r in rows]
     for name in ("runout_1to1.png", "error_heatmaps.png", "evolution_p25.png", "evolution_p50.png", "evolution_p75.png"):
         assert (folder / name).stat().st_size > 1000
@@ -335,6 +341,18 @@ def column_and_slope_summaries(engine: str) -> tuple[dict, dict]:
              "wall_time_s": {"mpm": 1.0, "mpm_device": "cpu", "mpm_host": "h", "mpm_batch_size": 1, engine: 2.0,
                              f"{engine}_device": "cuda", f"{engine}_host": "g"}}
     return columns, slope
+
+
+def test_report_tables_the_signed_error_by_friction_angle_where_the_summary_has_it():
+    from runout.evaluate.report import SECTIONS
+
+    columns, _ = column_and_slope_summaries("predicted")
+    assert not any("by friction angle" in line for line in SECTIONS["columns"](columns, "neural MPM"))  # older summaries
+    columns["by_friction_angle"] = [{"aspect": 1.0, "phi_deg": 0.0, "cases": 1, "mean_signed_error_percent": -14.29,
+                                     "mean_ape_percent": 14.29}]
+    lines = SECTIONS["columns"](columns, "neural MPM")
+    assert any("signed error of L^n by friction angle" in line for line in lines)
+    assert "| aspect a | φ = 0° |" in lines and "| 1 | -14.29 |" in lines
 
 
 @pytest.mark.parametrize("keys", ["predicted", "gns"])

@@ -149,7 +149,10 @@ def columns(
                       parse_numbers(cohesions, "--cohesions"), frames, study.scale, study.examples)
     summary = run_columns(study.model, study.out, grid, engines)
     for b in summary["by_aspect"]:
-        typer.echo(f"a = {b['aspect']:g}: mean error {b['mean_ape_percent']:.2f} %, CV {b['cv_ape']:.2f}, R² {b['r2']:.3f}")
+        signed = [f"{f['phi_deg']:g}° {f['mean_signed_error_percent']:+.1f}" for f in summary["by_friction_angle"]
+                  if f["aspect"] == b["aspect"]]
+        typer.echo(f"a = {b['aspect']:g}: mean error {b['mean_ape_percent']:.2f} %, CV {b['cv_ape']:.2f}, R² {b['r2']:.3f}; "
+                   f"signed error by φ (%, + too far): {', '.join(signed)}")
     typer.echo(f"wrote {study.out / 'columns'}/cases.csv, summary.json and figures")
 
 

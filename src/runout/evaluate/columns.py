@@ -126,6 +126,24 @@ def aspect_statistics(rows: list[ColumnResult]) -> list[dict]:
     return stats
 
 
+def friction_statistics(rows: list[ColumnResult]) -> list[dict]:
+    """Per aspect ratio and friction angle: number of cases and the mean signed error of L^n (%,
+    predicted minus MPM over MPM: positive runs too far), which says whether the engine's runout
+    falls with φ as steeply as the MPM's; and the mean absolute error (%)."""
+    stats = []
+    for aspect in sorted({r.aspect for r in rows}):
+        for phi in sorted({r.phi_deg for r in rows if r.aspect == aspect}):
+            group = [r for r in rows if r.aspect == aspect and r.phi_deg == phi]
+            signed = [100.0 * (r.runout_norm_predicted - r.runout_norm_mpm) / r.runout_norm_mpm for r in group
+                      if r.runout_norm_mpm != 0]
+            stats.append({
+                "aspect": aspect, "phi_deg": phi, "cases": len(group),
+                "mean_signed_error_percent": float(np.nanmean(signed)) if signed else float("nan"),
+                "mean_ape_percent": float(np.nanmean([r.ape_percent for r in group])),
+            })
+    return stats
+
+
 def percentile_cases(rows: list[ColumnResult]) -> dict[int, ColumnResult]:
     """The case at each error percentile: rank round(q / 100 x (n - 1)) of the sorted errors."""
     ranked = sorted(rows, key=lambda r: (np.nan_to_num(r.ape_percent, nan=np.inf), r.case))
@@ -143,6 +161,7 @@ def summarise(rows: list[ColumnResult], grid: ColumnGrid, model: Path) -> dict:
         "mean_ape_percent": float(np.nanmean(ape)),
         "median_ape_percent": float(np.nanmedian(ape)),
         "by_aspect": aspect_statistics(rows),
+        "by_friction_angle": friction_statistics(rows),
         "percentile_cases": {str(q): asdict(r) for q, r in percentile_cases(rows).items()},
         "predicted_wall_s_total": float(sum(r.predicted_wall_s for r in rows)),
     }

@@ -103,6 +103,12 @@ def _columns(s: dict, label: str) -> list[str]:
     lines += _table(["aspect a", "cases", "mean error (%)", "paper (%)", "CV", "R²", "paper R²"],
                     [[b["aspect"], b["cases"], b["mean_ape_percent"], _paper_column(b["aspect"], g["scale"], 0), b["cv_ape"], b["r2"],
                       _paper_column(b["aspect"], g["scale"], 1)] for b in s["by_aspect"]])
+    if s.get("by_friction_angle"):  # summaries written before 2026-12-07 have no such table
+        phis = sorted({b["phi_deg"] for b in s["by_friction_angle"]})
+        signed = {(b["aspect"], b["phi_deg"]): b["mean_signed_error_percent"] for b in s["by_friction_angle"]}
+        lines += ["", f"Mean signed error of L^n by friction angle (%, {label} minus MPM over MPM: positive runs too far):", ""]
+        lines += _table(["aspect a"] + [f"φ = {phi:g}°" for phi in phis],
+                        [[b["aspect"]] + [signed.get((b["aspect"], phi)) for phi in phis] for b in s["by_aspect"]])
     lines += ["", "Cases at the 25th, 50th and 75th error percentiles:", ""]
     lines += _table(["percentile", "a", "φ (°)", "c (kPa)", "L^n MPM", f"L^n {label}", "error (%)"],
                     [[q, r["aspect"], r["phi_deg"], r["cohesion_kpa"], r["runout_norm_mpm"],
