@@ -164,6 +164,26 @@ def test_the_columns_stage_spans_the_column_study_but_leaves_its_cases_out():
     assert min(phis) < 2.0 and max(phis) > 43.0 and min(cs) < 10.0 and max(cs) > 70.0
 
 
+def test_the_tall_columns_stage_draws_only_tall_columns_in_the_study_domain_and_leaves_its_cases_out():
+    """`tall-columns`: the `columns` stage's domain and strengths, bases 40-120 m, aspect 1.2-2.5
+    (the study's a = 2 inside), none of the study's geometries."""
+    st = STAGES["tall-columns"]
+    assert (st.width, st.height) == (1000.0, 208.0) and st.friction_range == (0.0, 45.0) and st.cohesion_range == (5.0, 75.0)
+    assert st.stage_id not in {other.stage_id for name, other in STAGES.items() if name != "tall-columns"}
+    aspects = []
+    for s in _samples("tall-columns", "column", n=300):
+        (region,) = s.scene.regions
+        p = np.asarray(region.polygon)
+        base, height = np.ptp(p[:, 0]), np.ptp(p[:, 1])
+        _assert_in(base, (40.0, 120.0), "column base")
+        _assert_in(height / base, (1.2, 2.5), "column aspect")
+        assert height <= st.height - 8.0
+        for b, h in COLUMN_STUDY_GEOMETRIES:
+            assert abs(base - b) > COLUMN_STUDY_CLEARANCE or abs(height - h) > COLUMN_STUDY_CLEARANCE
+        aspects.append(height / base)
+    assert min(aspects) < 1.4 and max(aspects) > 2.2 and np.mean(np.asarray(aspects) >= 1.5) > 0.5
+
+
 def _mound_shape(s) -> dict:
     """A mound's shape from its corners: sizes in m, the left face's share of the run, face angles in degrees."""
     (x0, _), (x1, _), (x2, height), (x3, _) = (s.vertices[k] for k in ("[0]", "[1]", "[2]", "[3]"))

@@ -2,12 +2,14 @@
 
 Families: (a) square blocks thrown over uneven ground, (b) steep three-layer slopes,
 (c) gentle three-layer slopes, (d) zoned dams on a foundation, granular column collapses,
-layered mounds and four-zone dams on the rough base. Five stages: `base` (phi 10-40 deg,
+layered mounds and four-zone dams on the rough base. Six stages: `base` (phi 10-40 deg,
 c = 0, 300 x 152 m, families a-d), `finetune` (phi 3-35 deg, c 10-60 kPa, 400 x 152 m,
 families b-d and columns), `columns` (columns alone over the range of the paper's column
 study, section 5.1.1: phi 0-45 deg, c 5-75 kPa, 1000 x 208 m like its cases, base 60-220 m,
 aspect H0 / L0 0.3-2.5 drawn log-uniformly; the study's own 75 cases stay out, see
-COLUMN_STUDY_GEOMETRIES), `mounds` (mounds alone, around the paper's four-layer slope,
+COLUMN_STUDY_GEOMETRIES), `tall-columns` (the same with base 40-120 m and aspect 1.2-2.5:
+the `columns` stage draws few tall columns, 12 of its 160 training scenes at a >= 1.5, and
+the learned engines' toes run furthest there), `mounds` (mounds alone, around the paper's four-layer slope,
 section 5.1.2: phi 0-45 deg, c 0-75 kPa per layer, 1000 x 200 m like it; the slope's own
 geometry stays out, see FOUR_LAYER_SLOPE) and `dams` (four-zone dams alone, around the
 paper's dam of the inverse analysis, section 5.2: phi 0-45 deg, c 0-110 kPa per zone, a
@@ -59,6 +61,8 @@ from runout.scene import Domain, Material, Region, Scene, TimeSpec, polygon_area
 DOMAIN_HEIGHT = 152.0  # m, the base and finetune stages
 COLUMN_DOMAIN = (1000.0, 208.0)  # m, the paper's column study (examples/column_a*.toml)
 COLUMN_STUDY_GEOMETRIES = ((200.0, 100.0), (150.0, 150.0), (100.0, 200.0))  # (L0, H0) m of its a = 0.5, 1, 2
+TALL_COLUMN_BASE = (40.0, 120.0)  # m: L0 of a `tall-columns` draw
+TALL_COLUMN_ASPECT = (1.2, 2.5)  # H0 / L0 of a `tall-columns` draw, log-uniform (the study's a = 2 inside)
 COLUMN_STUDY_CLEARANCE = 5.0  # m: a `columns` draw within this of a study geometry in both sides is redrawn
 GROUND_TOP = 4.0  # m, top of the fixed ground strip under the layered slopes (b, c)
 MIN_THICKNESS = 4.0  # m, thinnest layer or gap allowed (two point spacings at 4 m cells)
@@ -134,6 +138,10 @@ STAGES = {
     "columns": Stage(
         "columns", 2, COLUMN_DOMAIN[0], (0.0, 45.0), (5.0, 75.0), {"column": 1}, 2, height=COLUMN_DOMAIN[1],
         column_base=(60.0, 220.0), column_aspect=(0.3, 2.5),
+    ),
+    "tall-columns": Stage(
+        "tall-columns", 5, COLUMN_DOMAIN[0], (0.0, 45.0), (5.0, 75.0), {"column": 1}, 2, height=COLUMN_DOMAIN[1],
+        column_base=TALL_COLUMN_BASE, column_aspect=TALL_COLUMN_ASPECT,
     ),
     "mounds": Stage(
         "mounds", 3, MOUND_DOMAIN[0], (0.0, 45.0), (0.0, 75.0), {"mound": 1}, 2, height=MOUND_DOMAIN[1],

@@ -19,7 +19,7 @@ def families(
     family: str = typer.Option(..., "--family", help="a (blocks), b (steep slope), c (gentle slope), d (dam on a foundation), column, mound or zoned_dam (four-zone dam on the rough base)."),
     count: int = typer.Option(12, "--count", help="Scenes to draw."),
     out: Path = typer.Option(Path("families.png"), "--out", help="PNG to write."),
-    stage: str = typer.Option(None, "--stage", help="base, finetune, columns, mounds or dams (default: base, finetune for column, mounds for mound, dams for zoned_dam)."),
+    stage: str = typer.Option(None, "--stage", help="base, finetune, columns, tall-columns, mounds or dams (default: base, finetune for column, mounds for mound, dams for zoned_dam)."),
     seed: int = typer.Option(0, "--seed", help="Random seed."),
     scenes: Path = typer.Option(None, "--scenes", help="Also write each scene as TOML into this directory."),
     force: bool = typer.Option(False, "--force", help="Replace another command's results in --scenes."),
@@ -33,7 +33,7 @@ def families(
 
 @app.command()
 def generate(
-    stage: str = typer.Option(..., "--stage", help="base (phi only, families a-d), finetune (phi and c, b-d and columns), columns (the column study's range: phi 0-45 deg, c 5-75 kPa, 1000 x 208 m) mounds (layered mounds around the four-layer slope: phi 0-45 deg, c 0-75 kPa, 1000 x 200 m) or dams (four-zone dams around the inverse analysis's dam: phi 0-45 deg, a quarter of the zones undrained at phi = 0, c 0-110 kPa, 800 x 100 m)."),
+    stage: str = typer.Option(..., "--stage", help="base (phi only, families a-d), finetune (phi and c, b-d and columns), columns (the column study's range: phi 0-45 deg, c 5-75 kPa, 1000 x 208 m), tall-columns (the same, bases 40-120 m, aspect 1.2-2.5), mounds (layered mounds around the four-layer slope: phi 0-45 deg, c 0-75 kPa, 1000 x 200 m) or dams (four-zone dams around the inverse analysis's dam: phi 0-45 deg, a quarter of the zones undrained at phi = 0, c 0-110 kPa, 800 x 100 m)."),
     count: int = typer.Option(..., "--count", help="Scenes in the dataset (paper: 2000 base, 1027 finetune)."),
     out: Path = typer.Option(..., "--out", help="Dataset directory; rerun the same command to resume."),
     seed: int = typer.Option(GenerateConfig.seed, "--seed", help="Random seed; scene k depends only on (seed, stage, k)."),
