@@ -299,10 +299,12 @@ def heldout(
 
 @evaluate_app.command()
 def report(
-    out: Path = OUT,
+    out: list[Path] = typer.Option(..., "--out", help="Results folder (OUT/<study>/summary.json); give one per engine "
+                                   "(--out runs/final --out runs/final-nmpm) to set them side by side."),
     doc: Path = typer.Option(Path("docs/results.md"), "--doc", help="Markdown page to write; figures go to <doc>_figures/ beside it."),
 ) -> None:
-    """Write the results page (tables and figures) from the studies' outputs in OUT."""
+    """Write the results page (tables and figures) from the studies' outputs in OUT; with several
+    --out (one per engine), a table sets the engines side by side and beside the paper first."""
     from runout.evaluate import write_report
 
     typer.echo(f"wrote {write_report(out, doc)}")
