@@ -497,3 +497,23 @@ def test_mpm_fd_runs_the_stencil_as_one_batch(toy, monkeypatch):
              for v in (values, values + [5.0, 0.0], values - [5.0, 0.0])]
     assert ev.loss == pytest.approx(alone[0], rel=1e-6)
     assert ev.gradient[0] == pytest.approx((alone[1] - alone[2]) / 10.0, rel=1e-4, abs=1e-9)
+
+
+def test_a_run_does_not_resume_on_a_replaced_model_file(tmp_path):
+    """The history names the model by its bytes, not only its path: a file replaced at the same
+    path (a newly shipped model) gets one sentence instead of the old file's evaluations."""
+    from runout.inverse.run import model_identity
+
+    model = tmp_path / "model.pt"
+    model.write_bytes(b"the first file's weights")
+    free = (FreeParameter("a", "c", 0.2, -0.5, 2.0), FreeParameter("b", "c", 2.5, 0.0, 3.0))
+    start = np.array([p.normalise(p.initial) for p in free])
+    first = RunInfo("d", "neural-mpm", model_identity(model), start.tolist())
+    minimise(rosenbrock, free, start, tmp_path / "run", first, OptimiserSpec(max_iterations=3), "test")
+    again = minimise(rosenbrock, free, start, tmp_path / "run", RunInfo("d", "neural-mpm", model_identity(model),
+                                                                         start.tolist()), OptimiserSpec(), "test")
+    assert again.iterations > 3  # the same file resumes and goes on
+    model.write_bytes(b"the second file's weights")
+    with pytest.raises(InputError, match="different spec, engine, model"):
+        minimise(rosenbrock, free, start, tmp_path / "run", RunInfo("d", "neural-mpm", model_identity(model),
+                                                                     start.tolist()), OptimiserSpec(), "test")

@@ -171,7 +171,7 @@ def _evaluator(spec, observation, engine, learned, model, device, fd_step, check
         for line in lines:
             warn(line)
     problem = inverse_problem(spec, observation, learned, checkpoint, progress)
-    return problem.evaluate, problem, str(Path(model).resolve())
+    return problem.evaluate, problem, model_identity(model)
 
 
 def _draw(result: StartResult, observation: Observation, chosen, warn: Log | None) -> None:
@@ -229,3 +229,12 @@ def summary_lines(inversion: InversionResult) -> list[str]:
     if inversion.intervals is not None:
         lines += interval_lines(inversion.intervals)
     return lines
+
+
+def model_identity(model: str | Path) -> str:
+    """The model file a run's history belongs to: its path and the sha256 of its bytes, so a
+    run is not resumed on the evaluations of a file since replaced at the same path."""
+    import hashlib
+
+    path = Path(model).resolve()
+    return f"{path} (sha256 {hashlib.sha256(path.read_bytes()).hexdigest()[:16]})"
