@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -234,7 +235,5 @@ def summary_lines(inversion: InversionResult) -> list[str]:
 def model_identity(model: str | Path) -> str:
     """The model file a run's history belongs to: its path and the sha256 of its bytes, so a
     run is not resumed on the evaluations of a file since replaced at the same path."""
-    import hashlib
-
     path = Path(model).resolve()
     return f"{path} (sha256 {hashlib.sha256(path.read_bytes()).hexdigest()[:16]})"
